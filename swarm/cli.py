@@ -1,0 +1,188 @@
+"""The ``swarm`` command line.
+
+Exit status: 0 success met, 1 ran but did not meet it, 2 bad input or failed to run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import yaml
+
+PROJECT_ROOT = Path(__file__).resolve().parent.parent
+DEFAULT_SCENARIO = "scenarios/thesis/cycle-local_consensus.yaml"
+EXIT_SUCCESS, EXIT_NOT_MET, EXIT_BAD_INPUT = 0, 1, 2
+
+
+class UsageError(Exception):
+    """Bad input from the command line; printed as one line, exit 2."""
+
+
+def _find_default_scenario() -> Path:
+    for base in (Path.cwd(), PROJECT_ROOT):
+        if (base / DEFAULT_SCENARIO).is_file():
+            return base / DEFAULT_SCENARIO
+    raise UsageError(f"no scenario given and the default {DEFAULT_SCENARIO} was not found")
+
+
+def _load_with_overrides(path: Path, args: argparse.Namespace):
+    """Load a scenario, applying command-line overrides before validation so that errors name keys."""
+    from swarm.scenario import ScenarioError, load_scenario, parse_scenario, resolve_model_path
+
+    scenario = load_scenario(path)
+    if not (args.engine or args.controller or args.model or args.duration):
+        return scenario
+    data = scenario.model_dump(mode="json")
+    if args.engine:
+        data["sim"]["engine"] = args.engine
+    if args.duration:
+        data["sim"]["duration_s"] = args.duration
+    if args.controller:
+        data["controller"]["kind"] = args.controller
+    if args.model:
+        try:
+            data["controller"]["model"] = str(resolve_model_path(args.model))
+        except ScenarioError:
+            raise UsageError(f"--model: model file not found: {args.model}") from None
+    return parse_scenario(data, f"{path} (with command-line overrides)")
+
+
+def _summary_lines(outcome: dict, out_dir: Path) -> list[str]:
+    lines = [
+        f"{outcome['scenario']}: {outcome['controller']} on {outcome['engine']}, {outcome['robots']} robots",
+    ]
+    metric = f"{outcome['metric']} <= {outcome['threshold']:g} m"
+    bound = outcome["lower_bound_s"]
+    if outcome["converged"]:
+        ratio = f", {outcome['ratio_to_lower_bound']:.2f}x the lower bound {bound:.2f} s" if bound else ""
+        lines.append(f"  converged: {metric} from {outcome['convergence_time_s']:.2f} s{ratio}")
+    else:
+        lines.append(
+            f"  NOT converged: final {outcome['metric']} {outcome['final_metric']:.3f} m ({metric} wanted)"
+        )
+    if len(outcome["components"]) > 1:
+        lines.append(f"  graph has {len(outcome['components'])} components:")
+        for component in outcome["components"]:
+            state = (
+                f"converged from {component['convergence_time_s']:.2f} s"
+                if component["converged"]
+                else f"not converged (final {component['final_metric']:.3f} m)"
+            )
+            lines.append(f"    robots {component['robots']}: {state}")
+    lines.append(f"  results: {out_dir}")
+    return lines
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from swarm.runner import run_scenario
+
+    path = Path(args.scenario) if args.scenario else _find_default_scenario()
+    scenario = _load_with_overrides(path, args)
+    out_dir = (
+        Path(args.out) if args.out else Path("runs") / f"{scenario.name}-{time.strftime('%Y%m%d-%H%M%S')}"
+    )
+    outcome = run_scenario(scenario, out_dir, path, progress=not args.quiet)
+    print("\n".join(_summary_lines(outcome, out_dir)))
+    return EXIT_SUCCESS if outcome["converged"] else EXIT_NOT_MET
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from swarm.sweep import SweepConfig, run_sweep
+
+    config = SweepConfig()
+    if args.config:
+        try:
+            data = yaml.safe_load(Path(args.config).read_text()) or {}
+        except FileNotFoundError:
+            raise UsageError(f"{args.config}: no such sweep config file") from None
+        except yaml.YAMLError as error:
+            raise UsageError(f"{args.config}: invalid YAML: {str(error).splitlines()[0]}") from None
+        config = SweepConfig.from_mapping(data, source=args.config)
+    overrides = {
+        "topologies": args.topologies,
+        "sizes": args.sizes,
+        "seeds": args.seeds,
+        "controllers": args.controllers,
+        "max_duration_s": args.max_duration,
+        "gain": args.gain,
+        "v_max_mps": args.v_max,
+    }
+    config = config.with_overrides({key: value for key, value in overrides.items() if value is not None})
+    out_dir = Path(args.out)
+    rows = run_sweep(config, out_dir, progress=not args.quiet)
+    failed = [row for row in rows if row["success_rate"] < 1.0]
+    print(f"sweep: {len(rows)} cells, table in {out_dir / 'sweep.md'}, plots in {out_dir}")
+    for row in failed:
+        print(
+            f"  not always converged: {row['topology']} N={row['robots']} {row['controller']}: "
+            f"{row['success_rate']:.1%}"
+        )
+    return EXIT_SUCCESS if not failed else EXIT_NOT_MET
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="swarm",
+        description="Decentralized GNN controllers for differential-drive robot swarms: "
+        "run scenarios, sweep experiments.",
+    )
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    run = commands.add_parser(
+        "run",
+        help="run one scenario and write its results directory",
+        description="Run a scenario file and write scenario.yaml, trajectory.jsonl, metrics.json, "
+        "convergence.png and animation.gif to the results directory. Exit 0 when the scenario's "
+        "success criterion is met, 1 when the run completed without meeting it, 2 on bad input.",
+    )
+    run.add_argument("scenario", nargs="?", help=f"scenario YAML file (default: {DEFAULT_SCENARIO})")
+    run.add_argument("--out", help="results directory (default: runs/<name>-<date>-<time>)")
+    run.add_argument("--engine", choices=["kinematic", "pybullet"], help="override sim.engine")
+    run.add_argument(
+        "--controller", choices=["gnn", "local_consensus", "centralized"], help="override controller.kind"
+    )
+    run.add_argument("--model", help="override controller.model (exported model file)")
+    run.add_argument("--duration", type=float, help="override sim.duration_s (simulated seconds)")
+    run.add_argument("--quiet", action="store_true", help="no progress bar")
+    run.set_defaults(handler=cmd_run)
+
+    sweep = commands.add_parser(
+        "sweep",
+        help="run a grid of topologies x sizes x seeds x controllers in the batched simulator",
+        description="Run every (topology, N, controller) cell with SEEDS random starts in the batched "
+        "kinematic simulator; write sweep.csv, sweep.md and plots of the convergence-time "
+        "distributions (absolute and as a ratio to the lower bound of DESIGN.md).",
+    )
+    sweep.add_argument("--config", help="YAML file with any SweepConfig fields")
+    sweep.add_argument("--topologies", nargs="+", help="complete cycle line star random disk")
+    sweep.add_argument("--sizes", nargs="+", type=int, help="robot counts N")
+    sweep.add_argument("--seeds", type=int, help="random starts per cell")
+    sweep.add_argument("--controllers", nargs="+", help="local_consensus centralized")
+    sweep.add_argument("--max-duration", type=float, help="simulated seconds before a start counts as failed")
+    sweep.add_argument("--gain", type=float, help="consensus gain K (1/s)")
+    sweep.add_argument("--v-max", type=float, help="wheel-speed limit (m/s)")
+    sweep.add_argument("--out", default="runs/sweep", help="output directory (default: runs/sweep)")
+    sweep.add_argument("--quiet", action="store_true", help="no progress bar")
+    sweep.set_defaults(handler=cmd_sweep)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    from swarm.scenario import ScenarioError
+
+    args = build_parser().parse_args(argv)
+    try:
+        return args.handler(args)
+    except (ScenarioError, UsageError) as error:
+        print(f"swarm {args.command}: error: {error}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except KeyboardInterrupt:
+        print(f"swarm {args.command}: interrupted", file=sys.stderr)
+        return EXIT_BAD_INPUT
+
+
+if __name__ == "__main__":
+    sys.exit(main())

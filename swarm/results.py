@@ -1,0 +1,115 @@
+"""The results directory of a run (DESIGN.md, Results) and the outcome written to metrics.json.
+
+Layout::
+
+    scenario.yaml       the resolved scenario, every default filled in
+    trajectory.jsonl    one line per tick, flushed as it happens:
+                        {"tick", "time_s", "poses": [[x, y, theta], ...]}
+    metrics.json        the outcome (see ``summarize``)
+    convergence.png     the metric over time
+    animation.gif       the robots and their graph edges
+    logs/               one log per process
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from swarm import graphs, metrics
+from swarm.scenario import Scenario, dump_scenario
+
+
+class TrajectoryWriter:
+    """Streams poses to ``trajectory.jsonl``; every tick is flushed, so a crash loses at most one."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self._file = open(path, "w", buffering=1)  # noqa: SIM115 (closed by close/__exit__)
+
+    def write(self, tick: int, time_s: float, poses: np.ndarray, **extra: object) -> None:
+        record = {"tick": int(tick), "time_s": round(float(time_s), 9), "poses": np.asarray(poses).tolist()}
+        record.update(extra)
+        self._file.write(json.dumps(record, separators=(",", ":")) + "\n")
+        self._file.flush()
+
+    def close(self) -> None:
+        self._file.close()
+
+    def __enter__(self) -> TrajectoryWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def prepare_results_dir(out_dir: Path, scenario: Scenario) -> Path:
+    """Create the directory (and logs/) and write the resolved scenario."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "logs").mkdir(exist_ok=True)
+    (out_dir / "scenario.yaml").write_text(dump_scenario(scenario))
+    return out_dir
+
+
+def read_trajectory(path: Path) -> tuple[np.ndarray, np.ndarray, list[dict]]:
+    """Times ``(T,)`` and poses ``(T, N, 3)`` from a trajectory file; a torn last line is skipped."""
+    records = []
+    with open(path) as file:
+        for line in file:
+            try:
+                records.append(json.loads(line))
+            except json.JSONDecodeError:
+                break
+    times = np.array([record["time_s"] for record in records], dtype=float)
+    poses = np.array([record["poses"] for record in records], dtype=float)
+    return times, poses, records
+
+
+def _none_if_nan(value: float) -> float | None:
+    return None if value is None or math.isnan(value) else float(value)
+
+
+def summarize(
+    scenario: Scenario,
+    times_s: np.ndarray,
+    poses: np.ndarray,
+    final_adjacency: np.ndarray,
+) -> dict:
+    """Outcome of a run from its trajectory: global consensus, per-component consensus and the
+    lower bound of DESIGN.md (Metrics) for the ``max_pairwise`` metric."""
+    metric, threshold = scenario.success.metric, scenario.success.threshold
+    positions = poses[..., :2]
+    values = metrics.METRICS[metric](positions)
+    convergence_time_s = _none_if_nan(metrics.convergence_time(times_s, values, threshold))
+    lower_bound_s = None
+    if metric == "max_pairwise":
+        lower_bound_s = metrics.lower_bound_s(positions[0], threshold, scenario.robot.v_max_mps)
+    components = graphs.connected_components(final_adjacency)
+    ratio = None
+    if convergence_time_s is not None and lower_bound_s:
+        ratio = convergence_time_s / lower_bound_s
+    return {
+        "scenario": scenario.name,
+        "engine": scenario.sim.engine,
+        "controller": scenario.controller.kind,
+        "robots": scenario.robots.count,
+        "metric": metric,
+        "threshold": threshold,
+        "converged": convergence_time_s is not None,
+        "convergence_time_s": convergence_time_s,
+        "final_metric": float(values[-1]),
+        "initial_metric": float(values[0]),
+        "lower_bound_s": lower_bound_s,
+        "ratio_to_lower_bound": ratio,
+        "duration_s": float(times_s[-1]),
+        "ticks": int(len(times_s) - 1),
+        "graph_connected": len(components) == 1,
+        "components": metrics.component_results(times_s, positions, components, metric, threshold),
+    }
+
+
+def write_metrics(out_dir: Path, outcome: dict) -> None:
+    (out_dir / "metrics.json").write_text(json.dumps(outcome, indent=2) + "\n")

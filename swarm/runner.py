@@ -1,0 +1,87 @@
+"""Runs a scenario on an engine and writes its results directory.
+
+``kinematic`` runs in this process on the batched simulator (B = 1).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from swarm.controllers import BatchedController, Centralized, LocalConsensus
+from swarm.kinematic import KinematicSim
+from swarm.results import TrajectoryWriter, prepare_results_dir, summarize, write_metrics
+from swarm.scenario import Scenario, ScenarioError
+
+
+def build_controller(scenario: Scenario, scenario_path: Path | None = None) -> BatchedController:
+    """The batched controller named by ``scenario.controller``."""
+    spec = scenario.controller
+    if spec.kind == "local_consensus":
+        return LocalConsensus(scenario.robot, spec.gain)
+    if spec.kind == "centralized":
+        return Centralized(scenario.robot, spec.gain)
+    raise ScenarioError(f"controller.kind: '{spec.kind}' is not available in this version")
+
+
+def run_kinematic(
+    scenario: Scenario, out_dir: Path, scenario_path: Path | None = None, progress: bool = True
+) -> dict:
+    """Run on the kinematic engine, streaming the trajectory; returns the outcome (metrics.json)."""
+    controller = build_controller(scenario, scenario_path)
+    adjacency = scenario.adjacency()
+    sim = KinematicSim(
+        scenario.robot,
+        controller,
+        scenario.sim.control_period_s,
+        scenario.initial_poses()[None],
+        adjacency=adjacency,
+        disk_radius_m=scenario.topology.radius_m if adjacency is None else None,
+    )
+    prepare_results_dir(out_dir, scenario)
+    steps = scenario.steps
+    times = np.arange(steps + 1) * scenario.sim.control_period_s
+    poses = np.empty((steps + 1, scenario.robots.count, 3))
+    ticks = range(steps + 1)
+    if progress:
+        from tqdm import tqdm
+
+        ticks = tqdm(ticks, desc=f"{scenario.name} (kinematic)", unit="tick", leave=False)
+    with TrajectoryWriter(out_dir / "trajectory.jsonl") as trajectory:
+        for tick in ticks:
+            poses[tick] = sim.poses[0]
+            trajectory.write(tick, times[tick], poses[tick])
+            if tick < steps:
+                sim.step()
+    final_adjacency = sim.adjacency()[0]
+    outcome = summarize(scenario, times, poses, final_adjacency)
+    write_metrics(out_dir, outcome)
+    write_pictures(out_dir, scenario, times, poses, outcome)
+    return outcome
+
+
+def write_pictures(
+    out_dir: Path, scenario: Scenario, times: np.ndarray, poses: np.ndarray, outcome: dict
+) -> None:
+    from swarm.report import animation_gif, convergence_plot
+
+    robots, topology = scenario.robots.count, scenario.topology.kind
+    title = f"{scenario.name}: {scenario.controller.kind}, {robots} robots, {topology}"
+    convergence_plot(out_dir / "convergence.png", times, poses[..., :2], outcome, title)
+    animation_gif(
+        out_dir / "animation.gif",
+        times,
+        poses,
+        scenario.adjacency(),
+        scenario.topology.radius_m,
+        scenario.robot.body_radius_m,
+    )
+
+
+def run_scenario(
+    scenario: Scenario, out_dir: Path, scenario_path: Path | None = None, progress: bool = True
+) -> dict:
+    if scenario.sim.engine == "kinematic":
+        return run_kinematic(scenario, out_dir, scenario_path, progress)
+    raise ScenarioError(f"sim.engine: '{scenario.sim.engine}' is not available in this version")

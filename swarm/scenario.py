@@ -1,0 +1,283 @@
+"""Scenario files: one YAML file says everything about a run (DESIGN.md, Scenarios).
+
+The whole schema is the pydantic model ``Scenario``; ``load_scenario`` turns any
+problem with a file into one ``ScenarioError`` line naming the file, the key and
+the reason.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import yaml
+from pydantic import (
+    AliasChoices,
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
+
+from swarm import graphs
+from swarm.robot import RobotParams
+
+TopologyKind = Literal["complete", "cycle", "line", "star", "random", "disk", "matrix"]
+ControllerKind = Literal["gnn", "local_consensus", "centralized"]
+MetricName = Literal["max_pairwise", "spread", "thesis_disk"]
+
+
+class ScenarioError(ValueError):
+    """A scenario that cannot run; the message is one line for the user."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+
+
+class RandomInit(_Strict):
+    """Every robot uniform in a box, heading uniform, at least ``min_separation_m`` apart."""
+
+    seed: int = 0
+    x: tuple[float, float] = (-2.0, 2.0)
+    y: tuple[float, float] = (-2.0, 2.0)
+    theta: tuple[float, float] = (-math.pi, math.pi)
+    min_separation_m: float = Field(
+        0.4, ge=0, validation_alias=AliasChoices("min_separation_m", "min_separation")
+    )
+
+    @field_validator("x", "y", "theta")
+    @classmethod
+    def _ordered(cls, value: tuple[float, float]) -> tuple[float, float]:
+        if not value[0] <= value[1]:
+            raise ValueError(f"range must be [low, high] with low <= high, got {list(value)}")
+        return value
+
+
+class InitSpec(_Strict):
+    random: RandomInit | None = None
+    poses: list[tuple[float, float, float]] | None = None
+
+    @model_validator(mode="after")
+    def _exactly_one(self) -> InitSpec:
+        if (self.random is None) == (self.poses is None):
+            raise ValueError("give exactly one of 'random' and 'poses'")
+        return self
+
+
+class RobotsSpec(_Strict):
+    count: int = Field(ge=1)
+    init: InitSpec = Field(default_factory=lambda: InitSpec(random=RandomInit()))
+
+
+class TopologySpec(_Strict):
+    kind: TopologyKind
+    p: float | None = Field(None, ge=0, le=1, description="edge probability (random)")
+    seed: int = 0
+    connected: bool = False
+    radius_m: float | None = Field(None, gt=0, validation_alias=AliasChoices("radius_m", "radius"))
+    adjacency: list[list[float]] | None = None
+
+    @field_validator("adjacency")
+    @classmethod
+    def _valid_matrix(cls, value: list[list[float]] | None) -> list[list[float]] | None:
+        if value is not None:
+            graphs.validate_adjacency(value)
+        return value
+
+    @model_validator(mode="after")
+    def _kind_parameters(self) -> TopologySpec:
+        if self.kind == "random" and self.p is None:
+            raise ValueError("kind 'random' needs 'p'")
+        if self.kind == "disk" and self.radius_m is None:
+            raise ValueError("kind 'disk' needs 'radius'")
+        if self.kind == "matrix" and self.adjacency is None:
+            raise ValueError("kind 'matrix' needs 'adjacency'")
+        if self.kind != "matrix" and self.adjacency is not None:
+            raise ValueError(f"'adjacency' is only for kind 'matrix', not '{self.kind}'")
+        return self
+
+
+class ControllerSpec(_Strict):
+    kind: ControllerKind = "gnn"
+    model: str | None = None
+    gain: float = Field(1.0, gt=0, description="consensus gain K in 1/s (thesis eq. 3.1)")
+
+
+class SimSpec(_Strict):
+    engine: Literal["kinematic", "pybullet"] = "kinematic"
+    mode: Literal["lockstep", "realtime"] = "lockstep"
+    control_period_s: float = Field(
+        0.05, gt=0, le=1.0, validation_alias=AliasChoices("control_period_s", "control_period")
+    )
+    duration_s: float = Field(20.0, gt=0, validation_alias=AliasChoices("duration_s", "duration"))
+    physics_hz: float = Field(240.0, gt=0)
+    solver_iterations: int = Field(10, ge=1)
+
+
+class FaultSpec(_Strict):
+    kind: Literal[
+        "drop_link",
+        "restore_link",
+        "packet_loss",
+        "delay",
+        "kill_agent",
+        "hang_agent",
+        "restart_agent",
+        "kill_server",
+    ]
+    at_s: float | None = Field(None, ge=0, validation_alias=AliasChoices("at_s", "at"))
+    link: tuple[int, int] | None = None
+    p: float | None = Field(None, ge=0, le=1)
+    robot: int | None = Field(None, ge=0)
+    duration_s: float | None = Field(None, gt=0, validation_alias=AliasChoices("duration_s", "duration"))
+
+
+class SuccessSpec(_Strict):
+    metric: MetricName = "max_pairwise"
+    threshold: float = Field(0.2, gt=0, description="metric value in metres that counts as consensus")
+
+
+class Scenario(_Strict):
+    name: str
+    description: str = ""
+    robots: RobotsSpec
+    topology: TopologySpec
+    robot: RobotParams = Field(default_factory=RobotParams)
+    controller: ControllerSpec = Field(default_factory=ControllerSpec)
+    sim: SimSpec = Field(default_factory=SimSpec)
+    faults: list[FaultSpec] = Field(default_factory=list)
+    success: SuccessSpec = Field(default_factory=SuccessSpec)
+
+    @model_validator(mode="after")
+    def _counts_agree(self) -> Scenario:
+        count = self.robots.count
+        if self.robots.init.poses is not None and len(self.robots.init.poses) != count:
+            raise ValueError(
+                f"robots.init.poses has {len(self.robots.init.poses)} poses but robots.count is {count}"
+            )
+        if self.topology.adjacency is not None and len(self.topology.adjacency) != count:
+            raise ValueError(
+                f"topology.adjacency is {len(self.topology.adjacency)}x{len(self.topology.adjacency)}"
+                f" but robots.count is {count}"
+            )
+        for index, fault in enumerate(self.faults):
+            for robot in [*(fault.link or ()), *([fault.robot] if fault.robot is not None else [])]:
+                if robot >= count:
+                    raise ValueError(f"faults[{index}] names robot {robot} but robots.count is {count}")
+        return self
+
+    @property
+    def steps(self) -> int:
+        """Control ticks in the run."""
+        return round(self.sim.duration_s / self.sim.control_period_s)
+
+    def initial_poses(self) -> np.ndarray:
+        """``(N, 3)`` initial axle-centre poses, reproducible from the seed."""
+        from swarm.initial_poses import random_poses
+
+        init = self.robots.init
+        if init.poses is not None:
+            return np.array(init.poses, dtype=float)
+        spec = init.random
+        rng = np.random.default_rng(spec.seed)
+        return random_poses(rng, 1, self.robots.count, spec.x, spec.y, spec.min_separation_m, spec.theta)[0]
+
+    def adjacency(self) -> np.ndarray | None:
+        """Fixed ``(N, N)`` adjacency, or None for disk graphs (recomputed from positions)."""
+        return fixed_adjacency(self.topology, self.robots.count)
+
+
+def fixed_adjacency(topology: TopologySpec, count: int, seed: int | None = None) -> np.ndarray | None:
+    """Adjacency of a fixed topology; ``seed`` overrides the random graph's seed."""
+    kind = topology.kind
+    if kind == "disk":
+        return None
+    if kind == "matrix":
+        return graphs.validate_adjacency(topology.adjacency)
+    if kind == "random":
+        return graphs.erdos_renyi(
+            count, topology.p, topology.seed if seed is None else seed, connected=topology.connected
+        )
+    return {"complete": graphs.complete, "cycle": graphs.cycle, "line": graphs.line, "star": graphs.star}[
+        kind
+    ](count)
+
+
+def _location(loc: tuple) -> str:
+    parts: list[str] = []
+    for item in loc:
+        if isinstance(item, int):
+            parts.append(f"[{item}]")
+        elif parts:
+            parts.append(f".{item}")
+        else:
+            parts.append(str(item))
+    return "".join(parts) or "(top level)"
+
+
+def describe_validation_error(error: ValidationError) -> str:
+    """First pydantic error as ``key: reason`` (plus how many more there are)."""
+    errors = error.errors()
+    first = errors[0]
+    loc = tuple(part for part in first["loc"] if not (isinstance(part, str) and part.startswith("function-")))
+    message = first["msg"].removeprefix("Value error, ")
+    if first["type"] == "extra_forbidden":
+        message = "unknown key"
+    elif first["type"] == "missing":
+        message = "required key is missing"
+    more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
+    return f"{_location(loc)}: {message}{more}"
+
+
+def parse_scenario(data: object, source: str = "<scenario>") -> Scenario:
+    if not isinstance(data, dict):
+        raise ScenarioError(f"{source}: top level must be a mapping of keys, got {type(data).__name__}")
+    try:
+        return Scenario.model_validate(data)
+    except ValidationError as error:
+        raise ScenarioError(f"{source}: {describe_validation_error(error)}") from None
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read, validate and check a scenario file; any problem raises one ``ScenarioError`` line."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise ScenarioError(f"{path}: no such scenario file") from None
+    except OSError as error:
+        raise ScenarioError(f"{path}: cannot read: {error.strerror}") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as error:
+        mark = getattr(error, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        problem = getattr(error, "problem", None) or str(error).splitlines()[0]
+        raise ScenarioError(f"{path}: invalid YAML{where}: {problem}") from None
+    scenario = parse_scenario(data, str(path))
+    if scenario.controller.model is not None:
+        resolve_model_path(scenario.controller.model, path)
+    return scenario
+
+
+def resolve_model_path(model: str, scenario_path: Path | None = None) -> Path:
+    """Find a model file: as given (absolute or from the current directory), then next to the
+    scenario file, then in the project root above the scenario's folder."""
+    candidates = [Path(model)]
+    if scenario_path is not None and not Path(model).is_absolute():
+        candidates += [scenario_path.parent / model, scenario_path.parent.parent / model]
+    for candidate in candidates:
+        if candidate.is_file():
+            return candidate
+    source = f"{scenario_path}: " if scenario_path is not None else ""
+    raise ScenarioError(f"{source}controller.model: model file not found: {model}")
+
+
+def dump_scenario(scenario: Scenario) -> str:
+    """The resolved scenario (every default filled in) as YAML."""
+    return yaml.safe_dump(scenario.model_dump(mode="json"), sort_keys=False)
