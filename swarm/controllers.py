@@ -8,7 +8,9 @@ ticks old, in the batched simulator exactly as in the distributed runtime.
 A controller implements::
 
     message_dim: int
-    act(poses (B,N,3), inbox (B,N,D), heard (B,N,N)) -> (u_world (B,N,2), outbox (B,N,D))
+    act(poses (B,N,3), points (B,N,2), inbox (B,N,D), heard (B,N,N)) -> (u_world (B,N,2), outbox (B,N,D))
+
+``points`` are the controlled points (``swarm.robot.controlled_point`` of the poses),
 
 ``inbox[b, j]`` is what robot j broadcast last tick; ``heard[b, i, j]`` is 1
 when robot i received it (graph edge and message delivered), else 0.
@@ -20,17 +22,17 @@ from typing import Protocol
 
 import numpy as np
 
+from swarm import kernels
 from swarm.experts import complete_consensus_velocity
-from swarm.robot import RobotParams, controlled_point
+from swarm.links import Links
+from swarm.robot import RobotParams
 
 
 class BatchedController(Protocol):
     message_dim: int
     centralized: bool
 
-    def act(
-        self, poses: np.ndarray, inbox: np.ndarray, heard: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]: ...
+    def act(self, poses: np.ndarray, inbox: np.ndarray, heard: Links) -> tuple[np.ndarray, np.ndarray]: ...
 
 
 class LocalConsensus:
@@ -47,11 +49,12 @@ class LocalConsensus:
         self.robot = robot
         self.gain = gain
 
-    def act(self, poses: np.ndarray, inbox: np.ndarray, heard: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        points = controlled_point(poses, self.robot.offset_m)
-        heard_count = heard.sum(axis=-1)[..., None]
-        u_world = -self.gain * (heard_count * points - heard @ inbox)
-        return u_world, points
+    def act(
+        self, poses: np.ndarray, points: np.ndarray, inbox: np.ndarray, heard: Links
+    ) -> tuple[np.ndarray, np.ndarray]:
+        u_world = np.empty_like(points)
+        kernels.delayed_consensus(points, inbox, heard.index, heard.weight, self.gain, u_world)
+        return u_world, points.copy()
 
 
 class Centralized:
@@ -68,6 +71,7 @@ class Centralized:
         self.robot = robot
         self.gain = gain
 
-    def act(self, poses: np.ndarray, inbox: np.ndarray, heard: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        points = controlled_point(poses, self.robot.offset_m)
+    def act(
+        self, poses: np.ndarray, points: np.ndarray, inbox: np.ndarray, heard: Links
+    ) -> tuple[np.ndarray, np.ndarray]:
         return complete_consensus_velocity(points, self.gain), inbox

@@ -1,0 +1,1 @@
+"""PyBullet simulation server: physics of the differential-drive robots."""
