@@ -23,9 +23,9 @@ from typing import Protocol
 import numpy as np
 
 from swarm import kernels
-from swarm.experts import complete_consensus_velocity
+from swarm.experts import complete_consensus_velocity, neighbour_consensus_velocity
 from swarm.links import Links
-from swarm.robot import RobotParams
+from swarm.robot import RobotParams, controlled_point
 
 
 class BatchedController(Protocol):
@@ -55,6 +55,10 @@ class LocalConsensus:
         u_world = np.empty_like(points)
         kernels.delayed_consensus(points, inbox, heard.index, heard.weight, self.gain, u_world)
         return u_world, points.copy()
+
+    def act_one(self, pose: np.ndarray, neighbour_messages: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        point = controlled_point(np.asarray(pose, dtype=float), self.robot.offset_m)
+        return neighbour_consensus_velocity(point, neighbour_messages, self.gain), point
 
 
 class Centralized:

@@ -1,0 +1,365 @@
+"""Sweeps: topologies x swarm sizes x random starts x controllers in the batched simulator.
+
+Every cell runs all its random starts as one batch. An environment leaves the batch
+once its metric has stayed at or under the threshold for ``hold_s``; its convergence
+time is the first time after which the metric never rose above the threshold again
+(up to where it was simulated). Starts still above the threshold at ``max_duration_s``
+count as failures.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from dataclasses import asdict, dataclass, field, fields, replace
+from pathlib import Path
+
+import numpy as np
+
+from swarm import graphs, metrics
+from swarm.controllers import BatchedController, Centralized, LocalConsensus
+from swarm.initial_poses import box_for, random_poses
+from swarm.kinematic import KinematicSim
+from swarm.robot import RobotParams
+from swarm.scenario import ScenarioError
+
+TOPOLOGIES = ("complete", "cycle", "line", "star", "random", "disk")
+
+
+@dataclass(frozen=True)
+class SweepConfig:
+    topologies: list[str] = field(default_factory=lambda: ["complete", "cycle", "line", "star", "random"])
+    sizes: list[int] = field(default_factory=lambda: [6, 12, 24, 50, 100])
+    seeds: int = 1000
+    controllers: list[str] = field(default_factory=lambda: ["local_consensus", "centralized"])
+    gain: float = 1.0
+    v_max_mps: float = 0.5
+    control_period_s: float = 0.05
+    threshold_m: float = 0.2
+    max_duration_s: float = 20_000.0
+    hold_s: float = 5.0
+    random_p: float | None = None  # None: 1.5 ln(N) / N, a sparse but usually connected graph
+    disk_radius_m: float | None = None  # None: the smallest radius that connects every start
+    min_separation_m: float = 0.4
+    seed: int = 0
+
+    @classmethod
+    def from_mapping(cls, data: dict, source: str = "<config>") -> SweepConfig:
+        known = {item.name for item in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ScenarioError(f"{source}: {unknown[0]}: unknown key")
+        return cls().with_overrides(data, source)
+
+    def with_overrides(self, overrides: dict, source: str = "command line") -> SweepConfig:
+        config = replace(self, **overrides)
+        config.check(source)
+        return config
+
+    def check(self, source: str) -> None:
+        for topology in self.topologies:
+            if topology not in TOPOLOGIES:
+                raise ScenarioError(f"{source}: topologies: unknown topology '{topology}'")
+        for controller in self.controllers:
+            if controller not in ("local_consensus", "centralized"):
+                raise ScenarioError(f"{source}: controllers: unknown controller '{controller}'")
+        if any(size < 2 for size in self.sizes):
+            raise ScenarioError(f"{source}: sizes: every N must be at least 2")
+        for name in ("seeds", "gain", "v_max_mps", "control_period_s", "threshold_m", "max_duration_s"):
+            if not getattr(self, name) > 0:
+                raise ScenarioError(f"{source}: {name}: must be positive")
+
+
+def random_edge_probability(count: int) -> float:
+    return min(1.0, 1.5 * math.log(count) / count)
+
+
+def cell_graphs(
+    config: SweepConfig, topology: str, count: int, rng: np.random.Generator
+) -> np.ndarray | None:
+    """``(B, N, N)`` adjacency for one cell; None for disk graphs."""
+    if topology == "disk":
+        return None
+    if topology == "random":
+        p = config.random_p if config.random_p is not None else random_edge_probability(count)
+        seeds = rng.integers(0, 2**31, size=config.seeds)
+        return np.stack([graphs.erdos_renyi(count, p, int(seed), connected=True) for seed in seeds])
+    single = {"complete": graphs.complete, "cycle": graphs.cycle, "line": graphs.line, "star": graphs.star}
+    return np.broadcast_to(single[topology](count), (config.seeds, count, count))
+
+
+def connecting_radius(positions: np.ndarray) -> float:
+    """Smallest disk radius for which every start's disk graph is connected (largest MST edge)."""
+    largest = 0.0
+    for start in positions:
+        distance = np.linalg.norm(start[:, None] - start[None], axis=-1)
+        in_tree = np.zeros(len(start), dtype=bool)
+        in_tree[0] = True
+        best = distance[0].copy()
+        for _ in range(len(start) - 1):
+            candidate = np.where(in_tree, np.inf, best)
+            nearest = int(np.argmin(candidate))
+            largest = max(largest, float(candidate[nearest]))
+            in_tree[nearest] = True
+            best = np.minimum(best, distance[nearest])
+    return largest * 1.0001
+
+
+def make_controller(kind: str, robot: RobotParams, gain: float) -> BatchedController:
+    return LocalConsensus(robot, gain) if kind == "local_consensus" else Centralized(robot, gain)
+
+
+def converge_batch(
+    sim: KinematicSim,
+    threshold_m: float,
+    max_duration_s: float,
+    hold_s: float,
+    on_progress=None,
+) -> np.ndarray:
+    """Run until every environment has held max_pairwise <= threshold for ``hold_s`` or time runs out.
+
+    Returns the convergence time of each environment (NaN where it never converged).
+    """
+    batch = sim.batch_size
+    dt = sim.control_period_s
+    hold_ticks = max(1, round(hold_s / dt))
+    max_ticks = round(max_duration_s / dt)
+    active = np.arange(batch)
+    last_above = np.full(batch, -1, dtype=np.int64)  # last tick with metric above threshold
+    result = np.full(batch, np.nan)
+    for tick in range(max_ticks + 1):
+        above = _above_threshold(sim.poses[..., :2], threshold_m)
+        last_above[active[above]] = tick
+        if tick == max_ticks:
+            break
+        settled = tick - last_above[active] >= hold_ticks
+        if settled.any():
+            result[active[settled]] = (last_above[active[settled]] + 1) * dt
+            active = active[~settled]
+            sim.keep(~settled)
+            if len(active) == 0:
+                break
+        sim.step()
+        if on_progress is not None and tick % 200 == 0:
+            on_progress(tick * dt, batch - len(active))
+    if len(active):
+        below_at_end = last_above[active] < tick
+        result[active[below_at_end]] = (last_above[active[below_at_end]] + 1) * dt
+    return result
+
+
+def _above_threshold(positions: np.ndarray, threshold_m: float) -> np.ndarray:
+    """max_pairwise > threshold per environment, exact, computing pairwise distances only where the
+    cheap bounds ``r <= max_pairwise <= 2 r`` (r: largest distance to the centroid) cannot decide."""
+    radius = np.linalg.norm(positions - positions.mean(axis=1, keepdims=True), axis=-1).max(axis=-1)
+    above = radius > threshold_m
+    undecided = ~above & (2 * radius > threshold_m)
+    if undecided.any():
+        above[undecided] = metrics.max_pairwise(positions[undecided]) > threshold_m
+    return above
+
+
+def run_cell(config: SweepConfig, topology: str, count: int, controller: str, on_progress=None) -> dict:
+    """One (topology, N, controller) cell over ``config.seeds`` random starts."""
+    cell_seed = np.random.SeedSequence([config.seed, TOPOLOGIES.index(topology), count])
+    rng = np.random.default_rng(cell_seed)
+    box = box_for(count)
+    poses = random_poses(rng, config.seeds, count, box, box, config.min_separation_m)
+    adjacency = cell_graphs(config, topology, count, rng)
+    robot = RobotParams(v_max_mps=config.v_max_mps)
+    disk_radius = None
+    if adjacency is None:
+        disk_radius = config.disk_radius_m or connecting_radius(poses[..., :2])
+    sim = KinematicSim(
+        robot,
+        make_controller(controller, robot, config.gain),
+        config.control_period_s,
+        poses,
+        adjacency=adjacency,
+        disk_radius_m=disk_radius,
+    )
+    times = converge_batch(sim, config.threshold_m, config.max_duration_s, config.hold_s, on_progress)
+    lower = np.array(
+        [metrics.lower_bound_s(start[:, :2], config.threshold_m, config.v_max_mps) for start in poses]
+    )
+    if adjacency is None:
+        lambda2 = np.array(
+            [graphs.algebraic_connectivity(graphs.disk(start[:, :2], disk_radius)) for start in poses]
+        )
+    elif topology == "random":
+        lambda2 = np.array([graphs.algebraic_connectivity(matrix) for matrix in adjacency])
+    else:
+        lambda2 = np.full(config.seeds, graphs.algebraic_connectivity(adjacency[0]))
+    return {
+        "topology": topology,
+        "robots": count,
+        "controller": controller,
+        "times_s": times,
+        "lower_bound_s": lower,
+        "lambda2": lambda2,
+        "disk_radius_m": disk_radius,
+    }
+
+
+def summarize_cell(cell: dict) -> dict:
+    times, lower = cell["times_s"], cell["lower_bound_s"]
+    converged = ~np.isnan(times)
+    ratio = np.where(lower > 0, times / np.where(lower > 0, lower, 1.0), np.nan)
+
+    def stat(values: np.ndarray, function) -> float | None:
+        values = values[~np.isnan(values)]
+        return float(function(values)) if len(values) else None
+
+    return {
+        "topology": cell["topology"],
+        "robots": cell["robots"],
+        "controller": cell["controller"],
+        "starts": len(times),
+        "success_rate": float(converged.mean()),
+        "median_time_s": stat(times, np.median),
+        "p10_time_s": stat(times, lambda v: np.percentile(v, 10)),
+        "p90_time_s": stat(times, lambda v: np.percentile(v, 90)),
+        "max_time_s": stat(times, np.max),
+        "median_lower_bound_s": float(np.median(lower)),
+        "median_ratio_to_lower_bound": stat(ratio, np.median),
+        "min_ratio_to_lower_bound": stat(ratio, np.min),
+        "median_lambda2": float(np.median(cell["lambda2"])),
+        "median_time_x_lambda2": stat(times * cell["lambda2"], np.median),
+    }
+
+
+def run_sweep(config: SweepConfig, out_dir: Path, progress: bool = True) -> list[dict]:
+    """Run every cell, write sweep.csv, sweep.md, sweep_runs.npz and the plots; returns the rows."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    cells_todo = [
+        (topology, count, controller)
+        for topology in config.topologies
+        for count in config.sizes
+        for controller in config.controllers
+    ]
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(cells_todo), unit="cell", desc="sweep")
+    cells, rows = [], []
+    for topology, count, controller in cells_todo:
+        if bar is not None:
+            bar.set_description(f"{topology} N={count} {controller}")
+
+            def on_progress(time_s: float, done: int, bar=bar) -> None:
+                bar.set_postfix_str(f"t={time_s:.0f}s done={done}/{config.seeds}")
+
+        else:
+            on_progress = None
+        cell = run_cell(config, topology, count, controller, on_progress)
+        cells.append(cell)
+        rows.append(summarize_cell(cell))
+        if bar is not None:
+            bar.update()
+    if bar is not None:
+        bar.close()
+    write_tables(out_dir, config, rows)
+    np.savez_compressed(
+        out_dir / "sweep_runs.npz",
+        **{
+            f"{cell['topology']}_{cell['robots']}_{cell['controller']}_{key}": cell[key]
+            for cell in cells
+            for key in ("times_s", "lower_bound_s", "lambda2")
+        },
+    )
+    plot_sweep(out_dir, cells, rows, config)
+    return rows
+
+
+def write_tables(out_dir: Path, config: SweepConfig, rows: list[dict]) -> None:
+    with open(out_dir / "sweep.csv", "w", newline="") as file:
+        writer = csv.DictWriter(file, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    (out_dir / "sweep_config.json").write_text(json.dumps(asdict(config), indent=2) + "\n")
+
+    def fmt(value: object, digits: int = 2) -> str:
+        if value is None:
+            return "-"
+        if isinstance(value, float):
+            return f"{value:.{digits}f}"
+        return str(value)
+
+    header = (
+        "| topology | N | controller | starts | success | median t (s) | p90 t (s) | median LB (s) "
+        "| median t / LB | min t / LB | lambda2 | median t x lambda2 |"
+    )
+    lines = [
+        f"Sweep: {config.seeds} random starts per cell, gain K = {config.gain:g} 1/s, "
+        f"v_max = {config.v_max_mps:g} m/s, control period {config.control_period_s:g} s, "
+        f"max_pairwise threshold {config.threshold_m:g} m. LB: lower bound of DESIGN.md.",
+        "",
+        header,
+        "|" + "---|" * (header.count("|") - 1),
+    ]
+    for row in rows:
+        lines.append(
+            f"| {row['topology']} | {row['robots']} | {row['controller']} | {row['starts']} "
+            f"| {row['success_rate']:.1%} | {fmt(row['median_time_s'])} | {fmt(row['p90_time_s'])} "
+            f"| {fmt(row['median_lower_bound_s'])} | {fmt(row['median_ratio_to_lower_bound'])} "
+            f"| {fmt(row['min_ratio_to_lower_bound'])} | {fmt(row['median_lambda2'], 4)} "
+            f"| {fmt(row['median_time_x_lambda2'])} |"
+        )
+    (out_dir / "sweep.md").write_text("\n".join(lines) + "\n")
+
+
+def plot_sweep(out_dir: Path, cells: list[dict], rows: list[dict], config: SweepConfig) -> None:
+    """Convergence time against N and against 1/lambda2, and ratio-to-lower-bound distributions."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    controllers = list(dict.fromkeys(row["controller"] for row in rows))
+    topologies = list(dict.fromkeys(row["topology"] for row in rows))
+
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5), dpi=110)
+    for topology in topologies:
+        for controller in controllers:
+            chosen = [r for r in rows if r["topology"] == topology and r["controller"] == controller]
+            sizes = [r["robots"] for r in chosen]
+            medians = [r["median_time_s"] or np.nan for r in chosen]
+            style = "-" if controller == "local_consensus" else ":"
+            axes[0].plot(sizes, medians, style, marker="o", label=f"{topology}, {controller}")
+            if controller == "local_consensus":
+                inverse_lambda2 = [1.0 / r["median_lambda2"] for r in chosen]
+                axes[1].plot(inverse_lambda2, medians, marker="o", label=topology)
+    axes[0].set(xscale="log", yscale="log", xlabel="robots N", ylabel="median convergence time (s)")
+    axes[0].set_title("convergence time against swarm size")
+    axes[1].set(xscale="log", yscale="log", xlabel="1 / lambda2", ylabel="median convergence time (s)")
+    axes[1].set_title("local consensus: time against 1/lambda2")
+    reference = np.logspace(-1, 4, 10)
+    axes[1].plot(reference, reference * 4.0, color="grey", ls="--", lw=1, label="slope 1")
+    for ax in axes:
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out_dir / "convergence_time.png")
+    plt.close(fig)
+
+    fig, axes = plt.subplots(1, len(controllers), figsize=(6 * len(controllers), 4.5), dpi=110, squeeze=False)
+    for ax, controller in zip(axes[0], controllers, strict=True):
+        labels, data = [], []
+        for cell in cells:
+            if cell["controller"] != controller:
+                continue
+            lower = cell["lower_bound_s"]
+            ratio = cell["times_s"][lower > 0] / lower[lower > 0]
+            data.append(ratio[~np.isnan(ratio)])
+            labels.append(f"{cell['topology'][:4]}{cell['robots']}")
+        ax.boxplot(data, whis=(1, 99), showfliers=False)
+        ax.set_xticks(range(1, len(labels) + 1), labels, rotation=90, fontsize=7)
+        ax.axhline(1.0, color="tab:red", lw=1, ls="-.", label="lower bound")
+        ax.set(yscale="log", ylabel="convergence time / lower bound", title=f"{controller}")
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out_dir / "ratio_to_lower_bound.png")
+    plt.close(fig)
