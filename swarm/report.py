@@ -87,7 +87,7 @@ def animation_gif(
     max_frames: int = 150,
     frame_ms: int = 80,
 ) -> None:
-    """Top-down frames: robots as discs with a heading tick, graph edges as grey lines."""
+    """Top-down frames: robots as discs with a heading tick, their paths so far, graph edges in grey."""
     from PIL import Image, ImageDraw
 
     stride = max(1, int(np.ceil(len(times_s) / max_frames)))
@@ -113,6 +113,12 @@ def animation_gif(
         image = Image.new("RGB", (size_px, size_px + 18), "white")
         draw = ImageDraw.Draw(image)
         edges = adjacency if adjacency is not None else graphs.disk(xy[index], disk_radius_m)
+        for robot in range(poses.shape[1]):
+            trail = [to_px(xy[past, robot]) for past in frame_indices if past <= index]
+            if len(trail) > 1:
+                colour = ROBOT_COLOURS[robot % len(ROBOT_COLOURS)]
+                faded = tuple(255 - (255 - channel) // 3 for channel in colour)
+                draw.line(trail, fill=faded, width=1)
         rows, cols = np.nonzero(np.triu(edges))
         for i, j in zip(rows, cols, strict=True):
             draw.line([to_px(xy[index, i]), to_px(xy[index, j])], fill=(190, 190, 190), width=1)
@@ -127,6 +133,8 @@ def animation_gif(
                 fill=colour,
                 width=2,
             )
-        draw.text((4, size_px + 3), f"t = {times_s[index]:6.2f} s", fill=(0, 0, 0))
+        spread_m = float(metrics.max_pairwise(xy[index]))
+        caption = f"t = {times_s[index]:6.2f} s   max_pairwise = {spread_m:.2f} m"
+        draw.text((4, size_px + 3), caption, fill=(0, 0, 0))
         frames.append(image.convert("P", palette=Image.Palette.ADAPTIVE))
     frames[0].save(path, save_all=True, append_images=frames[1:], duration=frame_ms, loop=0, optimize=False)
