@@ -106,7 +106,10 @@ class KinematicSim:
     def keep(self, environments: np.ndarray) -> None:
         """Drop every environment not selected by the boolean or index array ``environments``."""
         self.poses = np.ascontiguousarray(self.poses[environments])
-        self._derive_heading_state()
+        # select the carried (cos, sin) state rather than re-deriving it from theta, which differs in the
+        # last bits and would make the kept environments drift from a run that never had the others
+        self.headings = np.ascontiguousarray(self.headings[environments])
+        self.points = np.ascontiguousarray(self.points[environments])
         self.inbox = self.inbox[environments]
         self._sent_over = self._sent_over.select(environments)
         if self._fixed_links is not None:

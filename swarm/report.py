@@ -24,6 +24,7 @@ ROBOT_COLOURS = [
     (188, 189, 34),
     (23, 190, 207),
 ]
+FADED_COLOURS = [tuple(255 - (255 - channel) // 3 for channel in colour) for colour in ROBOT_COLOURS]
 
 
 def convergence_plot(
@@ -116,9 +117,7 @@ def animation_gif(
         for robot in range(poses.shape[1]):
             trail = [to_px(xy[past, robot]) for past in frame_indices if past <= index]
             if len(trail) > 1:
-                colour = ROBOT_COLOURS[robot % len(ROBOT_COLOURS)]
-                faded = tuple(255 - (255 - channel) // 3 for channel in colour)
-                draw.line(trail, fill=faded, width=1)
+                draw.line(trail, fill=FADED_COLOURS[robot % len(FADED_COLOURS)], width=1)
         rows, cols = np.nonzero(np.triu(edges))
         for i, j in zip(rows, cols, strict=True):
             draw.line([to_px(xy[index, i]), to_px(xy[index, j])], fill=(190, 190, 190), width=1)
@@ -136,5 +135,11 @@ def animation_gif(
         spread_m = float(metrics.max_pairwise(xy[index]))
         caption = f"t = {times_s[index]:6.2f} s   max_pairwise = {spread_m:.2f} m"
         draw.text((4, size_px + 3), caption, fill=(0, 0, 0))
-        frames.append(image.convert("P", palette=Image.Palette.ADAPTIVE))
+        frames.append(image)
+    # Every colour drawn is known: quantize all frames to that one palette (no per-frame palette search).
+    colours = [(255, 255, 255), (0, 0, 0), (190, 190, 190)]
+    colours += ROBOT_COLOURS + FADED_COLOURS
+    palette = Image.new("P", (1, 1))
+    palette.putpalette([channel for colour in colours for channel in colour] + [0] * 3 * (256 - len(colours)))
+    frames = [frame.quantize(palette=palette, dither=Image.Dither.NONE) for frame in frames]
     frames[0].save(path, save_all=True, append_images=frames[1:], duration=frame_ms, loop=0, optimize=False)

@@ -117,6 +117,25 @@ class SimSpec(_Strict):
     duration_s: float = Field(20.0, gt=0, validation_alias=AliasChoices("duration_s", "duration"))
     physics_hz: float = Field(240.0, gt=0)
     solver_iterations: int = Field(10, ge=1)
+    # Distributed runtime (pybullet engine); see sim_server/server.py and robot_agent/agent.py.
+    deadline_s: float = Field(
+        1.0,
+        gt=0,
+        validation_alias=AliasChoices("deadline_s", "deadline"),
+        description="lockstep: longest the sim waits for the live agents' commands of a tick",
+    )
+    neighbour_deadline_s: float = Field(
+        0.5,
+        ge=0,
+        validation_alias=AliasChoices("neighbour_deadline_s", "neighbour_deadline"),
+        description="lockstep: longest an agent waits for its live neighbours' messages of the last tick",
+    )
+    watchdog_s: float = Field(
+        0.25,
+        gt=0,
+        validation_alias=AliasChoices("watchdog_s", "watchdog"),
+        description="a robot whose commands stop for this long (sim time in lockstep) is stopped",
+    )
 
 
 class FaultSpec(_Strict):
@@ -260,6 +279,13 @@ def load_scenario(path: str | Path) -> Scenario:
         problem = getattr(error, "problem", None) or str(error).splitlines()[0]
         raise ScenarioError(f"{path}: invalid YAML{where}: {problem}") from None
     scenario = parse_scenario(data, str(path))
+    # impossible placements and random graphs that cannot be made connected are bad input, found
+    # before anything starts (they would otherwise surface as a traceback mid-run)
+    for key, build in (("robots.init", scenario.initial_poses), ("topology", scenario.adjacency)):
+        try:
+            build()
+        except ValueError as error:
+            raise ScenarioError(f"{path}: {key}: {error}") from None
     if scenario.controller.model is not None:
         resolve_model_path(scenario.controller.model, path)
     return scenario
