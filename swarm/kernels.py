@@ -173,6 +173,48 @@ def _disk_lists(
             neighbour_weight[env, i, rest] = 0.0
 
 
+def _diameter_above(positions: np.ndarray, threshold_m: float, above: np.ndarray) -> None:
+    """``above[b]``: is max_pairwise of environment b larger than ``threshold_m``? positions ``(B, N, >=2)``.
+
+    With r the largest distance to the centroid, ``r <= max_pairwise <= 2 r``: pairs are scanned
+    only when those bounds cannot decide, and the scan stops at the first pair too far apart.
+    """
+    batch, count = positions.shape[0], positions.shape[1]
+    limit_sq = threshold_m * threshold_m
+    for env in numba.prange(batch):
+        cx = 0.0
+        cy = 0.0
+        for i in range(count):
+            cx += positions[env, i, 0]
+            cy += positions[env, i, 1]
+        cx /= count
+        cy /= count
+        radius_sq = 0.0
+        for i in range(count):
+            dx = positions[env, i, 0] - cx
+            dy = positions[env, i, 1] - cy
+            radius_sq = max(radius_sq, dx * dx + dy * dy)
+        if radius_sq > limit_sq:
+            above[env] = True
+            continue
+        if 4.0 * radius_sq <= limit_sq:
+            above[env] = False
+            continue
+        found = False
+        for i in range(count):
+            xi = positions[env, i, 0]
+            yi = positions[env, i, 1]
+            for j in range(i + 1, count):
+                dx = xi - positions[env, j, 0]
+                dy = yi - positions[env, j, 1]
+                if dx * dx + dy * dy > limit_sq:
+                    found = True
+                    break
+            if found:
+                break
+        above[env] = found
+
+
 # Robots (rows) per call from which the multi-threaded variant is used.
 PARALLEL_MIN_ROBOTS = 50_000
 
@@ -195,3 +237,4 @@ delayed_consensus = _serial_and_parallel(_delayed_consensus)
 dense_to_lists = _serial_and_parallel(_dense_to_lists)
 disk_degrees = _serial_and_parallel(_disk_degrees)
 disk_lists = _serial_and_parallel(_disk_lists)
+diameter_above = _serial_and_parallel(_diameter_above)

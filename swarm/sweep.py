@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from swarm import graphs, metrics
+from swarm import graphs, kernels, metrics
 from swarm.controllers import BatchedController, Centralized, LocalConsensus
 from swarm.initial_poses import box_for, random_poses
 from swarm.kinematic import KinematicSim
@@ -129,7 +129,7 @@ def converge_batch(
     last_above = np.full(batch, -1, dtype=np.int64)  # last tick with metric above threshold
     result = np.full(batch, np.nan)
     for tick in range(max_ticks + 1):
-        above = _above_threshold(sim.poses[..., :2], threshold_m)
+        above = _above_threshold(sim.poses, threshold_m)
         last_above[active[above]] = tick
         if tick == max_ticks:
             break
@@ -150,13 +150,10 @@ def converge_batch(
 
 
 def _above_threshold(positions: np.ndarray, threshold_m: float) -> np.ndarray:
-    """max_pairwise > threshold per environment, exact, computing pairwise distances only where the
-    cheap bounds ``r <= max_pairwise <= 2 r`` (r: largest distance to the centroid) cannot decide."""
-    radius = np.linalg.norm(positions - positions.mean(axis=1, keepdims=True), axis=-1).max(axis=-1)
-    above = radius > threshold_m
-    undecided = ~above & (2 * radius > threshold_m)
-    if undecided.any():
-        above[undecided] = metrics.max_pairwise(positions[undecided]) > threshold_m
+    """Exact ``max_pairwise > threshold`` per environment (``kernels.diameter_above``); positions or
+    poses ``(B, N, >=2)``, only the first two columns are read."""
+    above = np.empty(positions.shape[0], dtype=np.bool_)
+    kernels.diameter_above(np.ascontiguousarray(positions), threshold_m, above)
     return above
 
 
@@ -229,8 +226,44 @@ def summarize_cell(cell: dict) -> dict:
     }
 
 
+def cached_cell(
+    out_dir: Path, config: SweepConfig, topology: str, count: int, controller: str, on_progress=None
+) -> dict:
+    """``run_cell``, with its raw per-start results kept in ``out_dir/cells/``: a sweep that was
+    interrupted, or extended with more sizes or topologies, reuses every cell it already ran with
+    the same settings."""
+    grid = ("topologies", "sizes", "controllers")
+    settings = {key: value for key, value in asdict(config).items() if key not in grid}
+    path = out_dir / "cells" / f"{topology}_{count}_{controller}.npz"
+    if path.is_file():
+        with np.load(path) as saved:
+            if json.loads(str(saved["settings"])) == settings:
+                radius = float(saved["disk_radius_m"])
+                return {
+                    "topology": topology,
+                    "robots": count,
+                    "controller": controller,
+                    "times_s": saved["times_s"],
+                    "lower_bound_s": saved["lower_bound_s"],
+                    "lambda2": saved["lambda2"],
+                    "disk_radius_m": None if np.isnan(radius) else radius,
+                }
+    cell = run_cell(config, topology, count, controller, on_progress)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(
+        path,
+        settings=json.dumps(settings),
+        times_s=cell["times_s"],
+        lower_bound_s=cell["lower_bound_s"],
+        lambda2=cell["lambda2"],
+        disk_radius_m=np.nan if cell["disk_radius_m"] is None else cell["disk_radius_m"],
+    )
+    return cell
+
+
 def run_sweep(config: SweepConfig, out_dir: Path, progress: bool = True) -> list[dict]:
-    """Run every cell, write sweep.csv, sweep.md, sweep_runs.npz and the plots; returns the rows."""
+    """Run every cell (reusing cached ones), write sweep.csv, sweep.md, the per-start results in
+    cells/ and the plots; returns the rows."""
     out_dir.mkdir(parents=True, exist_ok=True)
     cells_todo = [
         (topology, count, controller)
@@ -253,7 +286,7 @@ def run_sweep(config: SweepConfig, out_dir: Path, progress: bool = True) -> list
 
         else:
             on_progress = None
-        cell = run_cell(config, topology, count, controller, on_progress)
+        cell = cached_cell(out_dir, config, topology, count, controller, on_progress)
         cells.append(cell)
         rows.append(summarize_cell(cell))
         if bar is not None:
@@ -261,14 +294,6 @@ def run_sweep(config: SweepConfig, out_dir: Path, progress: bool = True) -> list
     if bar is not None:
         bar.close()
     write_tables(out_dir, config, rows)
-    np.savez_compressed(
-        out_dir / "sweep_runs.npz",
-        **{
-            f"{cell['topology']}_{cell['robots']}_{cell['controller']}_{key}": cell[key]
-            for cell in cells
-            for key in ("times_s", "lower_bound_s", "lambda2")
-        },
-    )
     plot_sweep(out_dir, cells, rows, config)
     return rows
 

@@ -83,7 +83,7 @@ def test_sweep_command_writes_tables_and_plots(tmp_path):
     for name in (
         "sweep.csv",
         "sweep.md",
-        "sweep_runs.npz",
+        "cells/cycle_6_centralized.npz",
         "convergence_time.png",
         "ratio_to_lower_bound.png",
     ):
@@ -96,6 +96,28 @@ def test_sweep_command_writes_tables_and_plots(tmp_path):
         ("random", "centralized"),
     }
     assert all(float(row["success_rate"]) == 1.0 for row in rows)
+    # a second run reuses the cached cells and gives the same table
+    table = (out / "sweep.md").read_text()
+    (out / "cells" / "cycle_6_local_consensus.npz").touch()
+    assert (
+        main(
+            [
+                "sweep",
+                "--topologies",
+                "cycle",
+                "random",
+                "--sizes",
+                "6",
+                "--seeds",
+                "10",
+                "--quiet",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
+    assert (out / "sweep.md").read_text() == table
 
 
 def test_sweep_bad_input_is_one_line_and_exit_2(tmp_path, capsys):
