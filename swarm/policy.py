@@ -1,0 +1,231 @@
+"""Torch-free inference of an exported policy file: what a robot agent runs (numpy only).
+
+The file is one ``.npz`` (``numpy.savez``, no pickles): every weight under its torch
+``state_dict`` name as float32, plus ``__metadata__``, UTF-8 JSON bytes::
+
+    {"format": "gnn-swarm-policy", "format_version": 1,
+     "model": {"kind": "model1" | "model2" | "two_branch" | "gnn" | "gnn_mlp", "activation", widths...},
+     "features": {"hops": K, "phi_source": "m" | "output", "normaliser": "degree" | "n_minus_1"},
+     "feature_scale_m": 1.0, "output_scale_mps": 0.5,
+     "robot": {RobotParams fields}, "training": {free-form provenance}}
+
+The network maps robot-frame features ``x / feature_scale_m`` (``swarm.features``) to a
+robot-frame point velocity ``output_scale_mps * y`` (the gated ``gnn`` outputs m/s itself:
+``G sum_k w_k f_k``, see ``swarm.models.gnn``); the robot saturates it (eq. 2.3-2.4 and
+``swarm.robot.saturate_wheels``) and rotates it to the world frame.
+
+``Policy`` is a batched controller (``swarm.controllers``), so ``KinematicSim`` runs it, and has
+the per-robot ``act_one`` that a robot agent runs with the messages it actually heard.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from swarm.features import FeatureSpec, batched_features, messages, robot_features, saturate_local_velocity
+from swarm.robot import RobotParams, controlled_point, rotate
+
+if TYPE_CHECKING:  # swarm.links compiles numba kernels; an agent host has only numpy
+    from swarm.links import Links
+
+FORMAT = "gnn-swarm-policy"
+FORMAT_VERSION = 1
+METADATA_KEY = "__metadata__"
+MIRROR = np.array([1.0, -1.0])  # reflection about the robot's heading axis, in its own frame
+COSINE_EPS_M = 1e-3  # as swarm.models.gnn
+
+_ACTIVATIONS = {"relu": lambda x: np.maximum(x, 0.0), "tanh": np.tanh}
+
+
+class PolicyFormatError(ValueError):
+    """A policy file that cannot be read; the message says why."""
+
+
+def _layers(arrays: dict[str, np.ndarray], prefix: str) -> list[tuple[np.ndarray, np.ndarray | None]]:
+    layers = []
+    while f"{prefix}.{len(layers)}.weight" in arrays:
+        index = len(layers)
+        layers.append((arrays[f"{prefix}.{index}.weight"], arrays.get(f"{prefix}.{index}.bias")))
+    if not layers:
+        raise PolicyFormatError(f"no weights named {prefix}.0.weight")
+    return layers
+
+
+def _mlp(layers, x: np.ndarray, activation, final_activation: bool = False) -> np.ndarray:
+    for index, (weight, bias) in enumerate(layers):
+        x = x @ weight.T
+        if bias is not None:
+            x = x + bias
+        if final_activation or index < len(layers) - 1:
+            x = activation(x)
+    return x
+
+
+class FeatureController:
+    """The controller protocol around any ``forward(features_local) -> u_local``: features from the
+    messages heard (``swarm.features``), the robot's saturation, robot to world frame, next message.
+    ``Policy`` runs it with numpy; ``swarm.models`` runs the same with a torch model."""
+
+    centralized = False
+
+    def __init__(self, spec: FeatureSpec, robot: RobotParams, robot_count: int = 0):
+        self.spec = spec
+        self.robot = robot
+        self.robot_count = robot_count
+        self.message_dim = spec.message_dim
+
+    def forward(self, features_local: np.ndarray) -> np.ndarray:
+        """Robot-frame features ``(..., K, 2)`` in metres -> wished robot-frame point velocity (m/s)."""
+        raise NotImplementedError
+
+    def act(
+        self, poses: np.ndarray, points: np.ndarray, inbox: np.ndarray, heard: Links
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Batched: ``(B, N, 3)`` poses, ``(B, N, 2)`` points, last tick's ``(B, N, D)`` messages."""
+        features_local, phi_world = batched_features(poses, points, inbox, heard, self.spec)
+        u_local = saturate_local_velocity(self.forward(features_local), self.robot)
+        u_world = rotate(u_local, poses[..., 2])
+        return u_world, messages(points, phi_world, u_world, self.spec)
+
+    def act_one(
+        self, pose: np.ndarray, neighbour_messages: np.ndarray, robot_count: int | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """One robot: pose ``(3,)`` and the ``(m, D)`` messages it heard -> ``u_world (2,)``, message."""
+        pose = np.asarray(pose, dtype=np.float64)
+        point = controlled_point(pose, self.robot.offset_m)
+        count = self.robot_count if robot_count is None else robot_count
+        features_local, phi_world = robot_features(pose, point, neighbour_messages, self.spec, count)
+        u_local = saturate_local_velocity(self.forward(features_local), self.robot)
+        u_world = rotate(u_local, pose[2])
+        return u_world, messages(point, phi_world, u_world, self.spec)
+
+
+class Policy(FeatureController):
+    """An exported model, run with numpy. ``robot`` overrides the robot parameters in the file
+    (the controlled point and the saturation); ``robot_count`` is needed by the ``n_minus_1``
+    normaliser in ``act_one``."""
+
+    def __init__(
+        self,
+        metadata: dict,
+        arrays: dict[str, np.ndarray],
+        robot: RobotParams | None = None,
+        robot_count: int = 0,
+    ):
+        if metadata.get("format") != FORMAT:
+            raise PolicyFormatError(f"not a policy file (format {metadata.get('format')!r})")
+        if metadata.get("format_version") != FORMAT_VERSION:
+            raise PolicyFormatError(
+                f"policy format version {metadata.get('format_version')!r}, this code reads {FORMAT_VERSION}"
+            )
+        robot = robot if robot is not None else RobotParams(**metadata["robot"])
+        super().__init__(FeatureSpec.from_dict(metadata["features"]), robot, robot_count)
+        self.metadata = metadata
+        self.model = metadata["model"]
+        self.kind = self.model["kind"]
+        self.feature_scale_m = float(metadata["feature_scale_m"])
+        self.output_scale_mps = float(metadata["output_scale_mps"])
+        self._activation = _ACTIVATIONS[self.model["activation"]]
+        arrays = {name: np.asarray(value, dtype=np.float64) for name, value in arrays.items()}
+        if self.kind in ("model1", "model2"):
+            self._net = _layers(arrays, "net")
+        elif self.kind == "two_branch":
+            self._m_branch = _layers(arrays, "m_branch")
+            self._phi_branch = _layers(arrays, "phi_branch")
+            self._head = _layers(arrays, "head")
+        elif self.kind == "gnn":
+            self._gates = _layers(arrays, "gates")
+        elif self.kind == "gnn_mlp":
+            self._hop_maps = arrays["hop_maps"]
+            self._hop_bias = arrays.get("hop_bias")
+            self._readout = _layers(arrays, "readout")
+            if self._hop_maps.shape[0] != self.spec.hops:
+                raise PolicyFormatError(
+                    f"hop_maps has {self._hop_maps.shape[0]} hops, features {self.spec.hops}"
+                )
+        else:
+            raise PolicyFormatError(f"unknown model kind {self.kind!r}")
+
+    @classmethod
+    def load(
+        cls, source: str | Path | bytes, robot: RobotParams | None = None, robot_count: int = 0
+    ) -> Policy:
+        """From a file path or from the file's bytes (an agent receives the file over the network)."""
+        try:
+            with np.load(
+                io.BytesIO(source) if isinstance(source, bytes) else source, allow_pickle=False
+            ) as file:
+                arrays = {name: file[name] for name in file.files}
+        except (OSError, ValueError) as error:
+            raise PolicyFormatError(f"cannot read policy file: {error}") from None
+        if METADATA_KEY not in arrays:
+            raise PolicyFormatError("policy file has no metadata")
+        metadata = json.loads(arrays.pop(METADATA_KEY).tobytes().decode("utf-8"))
+        return cls(metadata, arrays, robot, robot_count)
+
+    # -- the network ---------------------------------------------------------------------------
+
+    def forward(self, features_local: np.ndarray) -> np.ndarray:
+        features_local = np.asarray(features_local, dtype=np.float64)
+        if self.kind == "gnn":
+            return self._gated(np.cumsum(features_local, axis=-2))
+        return self.output_scale_mps * self._network(features_local / self.feature_scale_m)
+
+    def _network(self, x: np.ndarray) -> np.ndarray:
+        """Scaled robot-frame features ``(..., K, 2)`` -> normalised output ``(..., 2)``."""
+        act = self._activation
+        if self.kind == "model1":
+            return _mlp(self._net, x[..., 0, :], act)
+        if self.kind == "model2":
+            return _mlp(self._net, x[..., :2, :].reshape(*x.shape[:-2], 4), act)
+        if self.kind == "two_branch":
+            m = _mlp(self._m_branch, x[..., 0, :], act, final_activation=True)
+            phi = _mlp(self._phi_branch, x[..., 1, :], act, final_activation=True)
+            return _mlp(self._head, np.concatenate([m, phi], axis=-1), act)
+        if not self.model["symmetrize"]:
+            return self._mlp_filter(x)
+        return 0.5 * (self._mlp_filter(x) + self._mlp_filter(x * MIRROR) * MIRROR)
+
+    def _mlp_filter(self, x: np.ndarray) -> np.ndarray:
+        """``readout(tanh(sum_k f_k W_k))`` (``swarm.models.gnn.MLPGraphFilter``)."""
+        f = np.cumsum(x, axis=-2)
+        hidden = f.reshape(*f.shape[:-2], -1) @ self._hop_maps.reshape(-1, self._hop_maps.shape[-1])
+        if self._hop_bias is not None:
+            hidden = hidden + self._hop_bias
+        return _mlp(self._readout, self._activation(hidden), self._activation)
+
+    def _gated(self, f: np.ndarray) -> np.ndarray:
+        """``G(z) sum_k w_k(z) f_k`` (``swarm.models.gnn.GatedGraphFilter``); f in metres."""
+        hops = f.shape[-2]
+        norms = np.sqrt((f * f).sum(-1) + COSINE_EPS_M**2)
+        rows, cols = np.triu_indices(hops, k=1)
+        cosines = (f[..., rows, :] * f[..., cols, :]).sum(-1) / (norms[..., rows] * norms[..., cols])
+        out = _mlp(self._gates, np.concatenate([norms / self.feature_scale_m, cosines], axis=-1), np.tanh)
+        low, high = self.model["gain_min_per_s"], self.model["gain_max_per_s"]
+        gain = low + (high - low) / (1.0 + np.exp(-out[..., 0]))
+        logits = out[..., 1:] - out[..., 1:].max(axis=-1, keepdims=True)
+        softmax = np.exp(logits) / np.exp(logits).sum(axis=-1, keepdims=True)
+        weights = (1.0 - self.model["hop1_weight_min"]) * softmax
+        weights[..., 0] += self.model["hop1_weight_min"]
+        return gain[..., None] * (weights[..., None] * f).sum(-2)
+
+
+def load_policy(source: str | Path | bytes, robot: RobotParams | None = None, robot_count: int = 0) -> Policy:
+    return Policy.load(source, robot, robot_count)
+
+
+def save_policy(path: str | Path, metadata: dict, arrays: dict[str, np.ndarray]) -> Path:
+    """Write a policy file (the exporter in ``swarm.models`` fills ``metadata`` and ``arrays``)."""
+    metadata = {"format": FORMAT, "format_version": FORMAT_VERSION, **metadata}
+    encoded = np.frombuffer(json.dumps(metadata, sort_keys=True).encode("utf-8"), dtype=np.uint8)
+    payload = {name: np.asarray(value, dtype=np.float32) for name, value in arrays.items()}
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "wb") as file:
+        np.savez(file, **payload, **{METADATA_KEY: encoded})
+    return path
