@@ -123,6 +123,56 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     return EXIT_SUCCESS if not failed else EXIT_NOT_MET
 
 
+def cmd_train(args: argparse.Namespace) -> int:
+    import importlib
+
+    from swarm.train import ALGORITHMS
+
+    overrides: dict = {}
+    if args.config:
+        try:
+            overrides = yaml.safe_load(Path(args.config).read_text()) or {}
+        except FileNotFoundError:
+            raise UsageError(f"{args.config}: no such training config file") from None
+        except yaml.YAMLError as error:
+            raise UsageError(f"{args.config}: invalid YAML: {str(error).splitlines()[0]}") from None
+    if args.out:
+        overrides["out"] = args.out
+    if args.data:
+        overrides["data"] = args.data
+    module = importlib.import_module(ALGORITHMS[args.algo])
+    try:
+        config = module.make_config(args.preset, overrides)
+    except (TypeError, ValueError) as error:
+        raise UsageError(str(error)) from None
+    print(f"swarm train: {args.algo} -> {module.train(config)}")
+    return EXIT_SUCCESS
+
+
+def cmd_collect(args: argparse.Namespace) -> int:
+    from swarm.data import collect, collect_config
+
+    overrides = {
+        "samples": args.samples,
+        "graphs": tuple(args.graphs) if args.graphs else None,
+        "sizes": tuple(args.sizes) if args.sizes else None,
+        "hops": args.hops,
+        "phi_source": args.phi_source,
+        "normaliser": args.normaliser,
+        "labels": args.labels,
+        "seed": args.seed,
+    }
+    try:
+        config = collect_config(args.preset, **overrides)
+    except ValueError as error:
+        raise UsageError(str(error)) from None
+    started = time.perf_counter()
+    dataset = collect(config, progress=not args.quiet)
+    path = dataset.save(args.out)
+    print(f"swarm collect: {len(dataset)} samples in {time.perf_counter() - started:.1f} s -> {path}")
+    return EXIT_SUCCESS
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="swarm",
@@ -167,6 +217,41 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--out", default="runs/sweep", help="output directory (default: runs/sweep)")
     sweep.add_argument("--quiet", action="store_true", help="no progress bar")
     sweep.set_defaults(handler=cmd_sweep)
+
+    from swarm.train import ALGORITHMS
+
+    train = commands.add_parser(
+        "train",
+        help="train a controller (behavioural cloning, reinforcement learning)",
+        description="Train with the chosen algorithm; --config is a YAML file of the algorithm's config "
+        "fields. Writes logs, checkpoints, plots and the trained model to the output directory.",
+    )
+    train.add_argument("--algo", required=True, choices=sorted(ALGORITHMS), help="training algorithm")
+    train.add_argument("--preset", default="default", help="named base config of the algorithm")
+    train.add_argument("--config", help="YAML file with config fields (override the preset)")
+    train.add_argument("--out", help="output directory (overrides the config's out)")
+    train.add_argument("--data", help="training data file, for algorithms that read one (bc: swarm collect)")
+    train.set_defaults(handler=cmd_train)
+
+    collect = commands.add_parser(
+        "collect",
+        help="collect expert data for behavioural cloning in the batched simulator",
+        description="Roll out the centralized expert (or local consensus) on a mix of graphs and sizes with "
+        "every robot's start random, and record each robot's features (with the policy's message timing) "
+        "and the expert's saturated robot-frame velocity to one .npz file (swarm.data).",
+    )
+    collect.add_argument("--preset", default="default", help="default | thesis (complete graph, N=6, M, Phi)")
+    collect.add_argument("--samples", type=int, help="robot-ticks to record (default 1,000,000)")
+    collect.add_argument("--graphs", nargs="+", help="complete cycle line star random disk")
+    collect.add_argument("--sizes", nargs="+", type=int, help="robot counts N")
+    collect.add_argument("--hops", type=int, help="K: features Phi1..PhiK")
+    collect.add_argument("--phi-source", choices=["m", "output"], help="Phi from neighbours' M or outputs")
+    collect.add_argument("--normaliser", choices=["degree", "n_minus_1"], help="c_i of M and Phi")
+    collect.add_argument("--labels", choices=["centralized", "local_consensus"], help="the expert")
+    collect.add_argument("--seed", type=int, help="random seed")
+    collect.add_argument("--out", default="data/bc.npz", help="output file (default: data/bc.npz)")
+    collect.add_argument("--quiet", action="store_true", help="no progress bar")
+    collect.set_defaults(handler=cmd_collect)
     return parser
 
 

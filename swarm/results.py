@@ -80,7 +80,7 @@ def summarize(
 ) -> dict:
     """Outcome of a run from its trajectory: global consensus, per-component consensus and the
     lower bound of DESIGN.md (Metrics) for the ``max_pairwise`` metric."""
-    metric, threshold = scenario.success.metric, scenario.success.threshold
+    metric, threshold = scenario.success.metric, scenario.threshold
     positions = poses[..., :2]
     values = metrics.METRICS[metric](positions)
     convergence_time_s = _none_if_nan(metrics.convergence_time(times_s, values, threshold))

@@ -1,6 +1,7 @@
 """Runs a scenario on an engine and writes its results directory.
 
-``kinematic`` runs in this process on the batched simulator (B = 1).
+``kinematic`` runs in this process on the batched simulator (B = 1); ``pybullet`` runs the sim
+server and one process per robot over Zenoh (``swarm.distributed``).
 """
 
 from __future__ import annotations
@@ -22,6 +23,17 @@ def build_controller(scenario: Scenario, scenario_path: Path | None = None) -> B
         return LocalConsensus(scenario.robot, spec.gain)
     if spec.kind == "centralized":
         return Centralized(scenario.robot, spec.gain)
+    if spec.kind == "gnn":
+        from swarm.policy import PolicyFormatError, load_policy
+        from swarm.scenario import resolve_model_path
+
+        if spec.model is None:
+            raise ScenarioError("controller.model: controller 'gnn' needs a model file")
+        path = resolve_model_path(spec.model, scenario_path)
+        try:
+            return load_policy(path, scenario.robot, scenario.robots.count)
+        except PolicyFormatError as error:
+            raise ScenarioError(f"controller.model: {path}: {error}") from None
     raise ScenarioError(f"controller.kind: '{spec.kind}' is not available in this version")
 
 
@@ -84,4 +96,8 @@ def run_scenario(
 ) -> dict:
     if scenario.sim.engine == "kinematic":
         return run_kinematic(scenario, out_dir, scenario_path, progress)
+    if scenario.sim.engine == "pybullet":
+        from swarm.distributed import run_distributed
+
+        return run_distributed(scenario, out_dir, scenario_path, progress)
     raise ScenarioError(f"sim.engine: '{scenario.sim.engine}' is not available in this version")

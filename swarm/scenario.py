@@ -109,7 +109,7 @@ class ControllerSpec(_Strict):
 
 
 class SimSpec(_Strict):
-    engine: Literal["kinematic", "pybullet"] = "kinematic"
+    engine: Literal["kinematic", "pybullet"] = "pybullet"
     mode: Literal["lockstep", "realtime"] = "lockstep"
     control_period_s: float = Field(
         0.05, gt=0, le=1.0, validation_alias=AliasChoices("control_period_s", "control_period")
@@ -156,9 +156,30 @@ class FaultSpec(_Strict):
     duration_s: float | None = Field(None, gt=0, validation_alias=AliasChoices("duration_s", "duration"))
 
 
+class EngineThresholds(_Strict):
+    """A threshold per engine: robots have bodies in PyBullet and cannot gather as tightly."""
+
+    kinematic: float = Field(gt=0)
+    pybullet: float = Field(gt=0)
+
+
 class SuccessSpec(_Strict):
     metric: MetricName = "max_pairwise"
-    threshold: float = Field(0.2, gt=0, description="metric value in metres that counts as consensus")
+    threshold: float | EngineThresholds = Field(
+        0.2, description="metric value in metres that counts as consensus, or one per engine"
+    )
+
+    @field_validator("threshold")
+    @classmethod
+    def _positive(cls, value: float | EngineThresholds) -> float | EngineThresholds:
+        if isinstance(value, float | int) and value <= 0:
+            raise ValueError(f"must be greater than 0, got {value}")
+        return value
+
+    def threshold_for(self, engine: str) -> float:
+        if isinstance(self.threshold, EngineThresholds):
+            return getattr(self.threshold, engine)
+        return float(self.threshold)
 
 
 class Scenario(_Strict):
@@ -189,6 +210,11 @@ class Scenario(_Strict):
                 if robot >= count:
                     raise ValueError(f"faults[{index}] names robot {robot} but robots.count is {count}")
         return self
+
+    @property
+    def threshold(self) -> float:
+        """The success threshold for this scenario's engine."""
+        return self.success.threshold_for(self.sim.engine)
 
     @property
     def steps(self) -> int:

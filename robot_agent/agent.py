@@ -1,0 +1,489 @@
+"""One robot's controller as its own process (DESIGN.md, "The distributed runtime").
+
+The agent knows its robot id, the run id and an endpoint of the sim server; it fetches everything
+else (graph neighbours, controller, policy) from ``swarm/<run>/config/<i>``. It then subscribes to
+exactly its own pose key and to the message keys of its graph neighbours (never a wildcard over
+robots), runs its onboard controller (:mod:`swarm.onboard`, numpy only) and publishes, each tick,
+its message to its neighbours and its saturated wheel speeds to the sim.
+
+Timing (DESIGN.md, information timing): at tick k the agent acts on its pose of tick k and on its
+neighbours' messages of tick k-1. ``lockstep``: it waits up to ``sim.neighbour_deadline_s`` (from
+receiving pose k) for the message of tick k-1 of every neighbour whose liveliness token is up; a
+message that misses it counts as lost and the neighbour is left out of that tick, as a dropped
+packet would be. ``realtime``: no waiting; each neighbour's latest message counts while it is at
+most ``STALE_TICKS`` old.
+
+Receiving costs no Python thread: the pose, the neighbours' messages and their liveliness arrive in
+Zenoh ring channels (filled by Zenoh's own threads, never blocking them) that the main thread reads
+once per tick; it sleeps in the pose channel's ``recv``. Only the sim's liveliness has a callback
+(it fires once or twice a run); a stop request or the sim going away interrupts that ``recv`` with a
+signal (``run`` from the main thread; elsewhere the agent polls). In lockstep a neighbour's message
+of tick k-1 reaches the agent before its pose k (both pass the server's router in order), so the
+agent rarely waits; when it must, it polls the channels until the deadline.
+
+The agent holds the token ``swarm/<run>/alive/agent/<i>``, exits cleanly (session closed) on SIGTERM
+or SIGINT and when the sim's token ``swarm/<run>/alive/sim`` goes away, and records what it
+subscribed to and received in ``<log-dir>/agent_<i>.json`` (once it is ready, and again at exit).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import zenoh
+
+from swarm import wire
+from swarm.onboard import robot_controller, wheels_one
+from swarm.robot import RobotParams
+
+STALE_TICKS = 10
+"""realtime: a neighbour message older than this many ticks is not used."""
+
+SIM_UNSEEN_S = 10.0
+"""An agent that has not seen the sim's liveliness token for this long (after fetching its
+config from it) takes the sim as gone."""
+
+INBOX_TICKS = 8
+"""Messages kept per neighbour (by tick): a fast neighbour's tick-k message must not hide its k-1."""
+
+POSE_RING = 4
+"""Poses buffered by the pose channel; the newest is used, older ones count as skipped."""
+
+MESSAGE_RING = 2 * INBOX_TICKS
+"""Samples buffered per neighbour channel (a ring: a slow agent drops, never stalls its session)."""
+
+LIVELINESS_RING = 16
+
+POLL_S = 0.0005
+"""lockstep: channel polling period while a live neighbour's message of the last tick is missing."""
+
+WAKE_SIGNAL = signal.SIGUSR1
+"""Sent to the main thread when the sim goes away, to interrupt its blocking ``recv``."""
+
+EXIT_DONE, EXIT_FAILED = 0, 1
+
+
+class _Wake(BaseException):
+    """Raised by a signal handler into the main thread's blocking ``recv`` (stop, sim gone)."""
+
+
+@dataclass
+class AgentOptions:
+    robot: int
+    run: str | None  # None: discover it (the one run whose sim serves this robot)
+    connect: list[str]
+    zenoh_mode: str = "client"
+    lease_ms: int = 1000
+    startup_timeout_s: float = 60.0
+    log_dir: Path | None = None
+
+
+@dataclass
+class Counters:
+    poses_received: int = 0
+    poses_invalid: int = 0
+    poses_skipped: int = 0
+    messages_received: int = 0
+    messages_invalid: int = 0
+    messages_lost: int = 0
+    messages_late: int = 0
+    ticks: int = 0
+    ticks_waited: int = 0
+    commands_sent: int = 0
+    neighbour_wait_s: list[float] = field(default_factory=list)
+    compute_s: list[float] = field(default_factory=list)
+
+
+def _stats_ms(samples_s: list[float]) -> dict[str, float | None]:
+    if not samples_s:
+        return {"p50": None, "p99": None, "max": None}
+    values = np.asarray(samples_s) * 1e3
+    p50, p99 = np.percentile(values, [50, 99])
+    return {"p50": round(float(p50), 4), "p99": round(float(p99), 4), "max": round(float(values.max()), 4)}
+
+
+class RobotAgent:
+    """The agent of one robot; :meth:`run` returns the process exit status."""
+
+    def __init__(self, options: AgentOptions):
+        self.options = options
+        self.run_id = options.run
+        self.keys = wire.Keys(options.run) if options.run is not None else None
+        self.robot = options.robot
+        self.counters = Counters()
+        self._stop = False
+        self._sim_alive: bool | None = None  # None: not seen yet
+        self._sim_unseen = False
+        self._blocking = False  # the main thread sits in a recv that a signal may interrupt
+        self._main_thread: int | None = None  # set when signals can interrupt the main thread
+        self._inbox: dict[int, dict[int, np.ndarray]] = {}
+        self._msg_subs: dict[int, zenoh.Subscriber] = {}
+        self._alive_subs: dict[int, zenoh.Subscriber] = {}
+        self._neighbours_alive: set[int] = set()
+        self._lockstep = True
+        self._last_tick = -1
+        self._dim = 0
+        self.config: wire.AgentConfig | None = None
+        self.record: dict = {
+            "robot": self.robot,
+            "role": "agent",
+            "pid": os.getpid(),
+            "ppid": os.getppid(),
+            "host": socket.gethostname(),
+            "run": options.run,
+            "connect": list(options.connect),
+            "subscriptions": [],
+            "liveliness_subscriptions": [],
+            "publications": [],
+            "liveliness_tokens": [],
+            "queries": [],
+            "exit_reason": None,
+        }
+        self._started_s = time.perf_counter()
+
+    # ------------------------------------------------------------------ signals and the one callback
+    def request_stop(self, *_: object) -> None:
+        """SIGTERM / SIGINT handler (also callable from the main thread)."""
+        self._stop = True
+        self._interrupt()
+
+    def _interrupt(self, *_: object) -> None:
+        """In the main thread (signal handler): leave a blocking ``recv`` if it sits in one."""
+        if self._blocking:
+            self._blocking = False  # at most one _Wake per recv
+            raise _Wake
+
+    def _kick(self) -> None:
+        """From another thread: make the main thread look at the flags now."""
+        if self._main_thread is not None:
+            signal.pthread_kill(self._main_thread, WAKE_SIGNAL)
+
+    def _on_sim_alive(self, sample: zenoh.Sample) -> None:
+        self._sim_alive = sample.kind == zenoh.SampleKind.PUT
+        if not self._sim_alive:
+            self._kick()
+
+    def _check_sim_seen(self) -> None:
+        if self._sim_alive is None:
+            self._sim_unseen = True
+            self._kick()
+
+    def _ended(self) -> bool:
+        return self._stop or self._sim_alive is False or self._sim_unseen
+
+    def _recv(self, subscriber: zenoh.Subscriber) -> zenoh.Sample | None:
+        """The next sample of a channel subscriber; None once stopped or the sim is gone."""
+        if self._main_thread is None:  # no signals here: poll
+            while not self._ended():
+                sample = subscriber.try_recv()
+                if sample is not None:
+                    return sample
+                time.sleep(0.001)
+            return None
+        try:
+            try:
+                self._blocking = True  # before the checks: a signal from here on interrupts recv
+                if self._ended():
+                    return None
+                return subscriber.recv()
+            finally:
+                self._blocking = False
+        except _Wake:
+            return None
+
+    # ------------------------------------------------------------------ channels (main thread)
+    def _drain_liveliness(self) -> None:
+        for j, subscriber in self._alive_subs.items():
+            while (sample := subscriber.try_recv()) is not None:
+                if sample.kind == zenoh.SampleKind.PUT:
+                    self._neighbours_alive.add(j)
+                else:
+                    self._neighbours_alive.discard(j)
+
+    def _drain_messages(self) -> None:
+        counters = self.counters
+        for j, subscriber in self._msg_subs.items():
+            box = self._inbox[j]
+            while (sample := subscriber.try_recv()) is not None:
+                message = wire.decode_message(sample.payload.to_bytes(), self._dim)
+                if message is None:
+                    counters.messages_invalid += 1
+                    continue
+                counters.messages_received += 1
+                if self._lockstep and message.tick < self._last_tick - 1:
+                    counters.messages_late += 1  # the tick that needed it is computed already
+                    continue
+                box[message.tick] = message.values
+                if len(box) > INBOX_TICKS:
+                    del box[min(box)]
+
+    def _next_pose(self, subscriber: zenoh.Subscriber) -> wire.Pose | None:
+        """Block for a pose newer than the last one used (the newest if several are queued)."""
+        counters, newest = self.counters, None
+        while newest is None:
+            sample = self._recv(subscriber)
+            while sample is not None:
+                pose = wire.decode_pose(sample.payload.to_bytes())
+                if pose is None:
+                    counters.poses_invalid += 1
+                else:
+                    counters.poses_received += 1
+                    if pose.tick > self._last_tick and (newest is None or pose.tick > newest.tick):
+                        if newest is not None:
+                            counters.poses_skipped += 1  # a newer pose came before we used this one
+                        newest = pose
+                sample = subscriber.try_recv()
+            if self._ended():
+                return None
+        return newest
+
+    def _wait_for_messages(self, tick: int, until_s: float) -> None:
+        """lockstep: poll until every live neighbour's message of ``tick - 1`` is in, or the deadline."""
+        while True:
+            self._drain_liveliness()
+            self._drain_messages()
+            if all(tick - 1 in self._inbox[j] for j in self._neighbours_alive):
+                return
+            if time.perf_counter() >= until_s or self._ended():
+                return
+            time.sleep(POLL_S)
+
+    # ------------------------------------------------------------------ main thread
+    def _open(self) -> zenoh.Session | None:
+        config = lambda: wire.session_config(  # noqa: E731 (a fresh config per attempt)
+            self.options.zenoh_mode, self.options.connect, (), self.options.lease_ms
+        )
+        deadline_s = self._started_s + self.options.startup_timeout_s
+        delay_s = 0.01
+        while not self._stop:
+            try:
+                return zenoh.open(config())
+            except zenoh.ZError:
+                if time.perf_counter() + delay_s > deadline_s:
+                    return None
+                time.sleep(delay_s)
+                delay_s = min(2 * delay_s, 0.25)
+        return None
+
+    def _discover_run(self, session: zenoh.Session) -> str | None:
+        """The run id of the one sim on this router that serves this robot (``--run`` not given)."""
+        key = wire.Keys.any_run_config(self.robot)
+        self.record["queries"].append(key)
+        deadline_s = self._started_s + self.options.startup_timeout_s
+        while not self._stop and time.perf_counter() < deadline_s:
+            runs, errors = set(), []
+            for reply in session.get(key, timeout=1.0):
+                if reply.ok is not None:
+                    run = wire.Keys.run_of_config(str(reply.ok.key_expr))
+                    if run is not None:
+                        runs.add(run)
+                else:
+                    errors.append(reply.err.payload.to_bytes().decode(errors="replace"))
+            if len(runs) == 1:
+                return runs.pop()
+            if runs:
+                self.record["config_error"] = (
+                    f"several runs serve robot {self.robot}: {sorted(runs)}; give --run"
+                )
+                return None
+            if errors:
+                self.record["config_error"] = "; ".join(errors)
+                return None
+            time.sleep(0.05)  # no sim answers yet
+        return None
+
+    def _fetch_config(self, session: zenoh.Session) -> wire.AgentConfig | None:
+        key = self.keys.config(self.robot)
+        self.record["queries"].append(key)
+        deadline_s = self._started_s + self.options.startup_timeout_s
+        while not self._stop and time.perf_counter() < deadline_s:
+            for reply in session.get(key, timeout=1.0):
+                if reply.ok is not None:
+                    config = wire.decode_config(reply.ok.payload.to_bytes())
+                    if config is not None and config.robot == self.robot and config.run == self.run_id:
+                        return config
+                    self.record["config_error"] = "invalid config reply"
+                else:
+                    self.record["config_error"] = reply.err.payload.to_bytes().decode(errors="replace")
+                    return None
+            time.sleep(0.05)  # no queryable yet: the sim is still starting
+        return None
+
+    def run(self) -> int:
+        """Run the agent until the sim goes away or a stop request. From the main thread, it
+        installs a ``WAKE_SIGNAL`` handler and sleeps in ``recv``; from another thread it polls."""
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(WAKE_SIGNAL, self._interrupt)
+            self._main_thread = threading.get_ident()
+        session = self._open()
+        if session is None:
+            self.record["exit_reason"] = "stopped" if self._stop else "could not connect"
+            self._write_record()
+            return EXIT_FAILED
+        try:
+            return self._run(session)
+        finally:
+            self._main_thread = None  # no more signals: the sim callback may still fire while closing
+            session.close()
+            self._write_record()
+
+    def _run(self, session: zenoh.Session) -> int:
+        if self.keys is None:
+            self.run_id = self._discover_run(session)
+            if self.run_id is None:
+                self.record["exit_reason"] = "stopped" if self._stop else "no sim serves this robot"
+                return EXIT_FAILED
+            self.keys = wire.Keys(self.run_id)
+            self.record["run"] = self.run_id
+        record, keys = self.record, self.keys
+        sim_sub = session.liveliness().declare_subscriber(keys.alive_sim, self._on_sim_alive, history=True)
+        record["liveliness_subscriptions"].append(keys.alive_sim)
+        config = self._fetch_config(session)
+        if config is None:
+            record["exit_reason"] = "stopped" if self._stop else "no config from the sim"
+            sim_sub.undeclare()
+            return EXIT_FAILED
+        self.config = config
+        params = RobotParams(**config.robot_params)
+        try:
+            controller = robot_controller(
+                config.controller, params, config.gain, config.policy, config.robot_count
+            )
+        except ValueError as error:  # swarm.policy.PolicyFormatError is a ValueError
+            record["exit_reason"] = f"bad controller: {error}"
+            sim_sub.undeclare()
+            return EXIT_FAILED
+        self._dim = controller.message_dim
+        self._lockstep = config.mode == "lockstep"
+        record.update(
+            controller=config.controller,
+            mode=config.mode,
+            neighbours=list(config.neighbours),
+            config_s=round(time.perf_counter() - self._started_s, 4),
+        )
+        ring = zenoh.handlers.RingChannel
+        entities = [sim_sub]
+        pose_sub = session.declare_subscriber(keys.pose(self.robot), ring(POSE_RING))
+        entities.append(pose_sub)
+        record["subscriptions"].append(keys.pose(self.robot))
+        for j in config.neighbours:
+            self._inbox[j] = {}
+            self._msg_subs[j] = session.declare_subscriber(keys.msg(j), ring(MESSAGE_RING))
+            entities.append(self._msg_subs[j])
+            record["subscriptions"].append(keys.msg(j))
+        for j in config.neighbours:
+            self._alive_subs[j] = session.liveliness().declare_subscriber(
+                keys.alive_agent(j), ring(LIVELINESS_RING), history=True
+            )
+            entities.append(self._alive_subs[j])
+            record["liveliness_subscriptions"].append(keys.alive_agent(j))
+        options = wire.publisher_options(config.mode)
+        msg_pub = session.declare_publisher(keys.msg(self.robot), **options)
+        cmd_pub = session.declare_publisher(keys.cmd(self.robot), **options)
+        record["publications"] += [keys.msg(self.robot), keys.cmd(self.robot)]
+        entities += [msg_pub, cmd_pub]
+        # The token comes last: once the sim sees it, every declaration above is in place.
+        entities.append(session.liveliness().declare_token(keys.alive_agent(self.robot)))
+        record["liveliness_tokens"].append(keys.alive_agent(self.robot))
+        record["ready_s"] = round(time.perf_counter() - self._started_s, 4)
+        record["cpu_ready_s"] = round(time.process_time(), 4)
+        self._write_record()
+        watchdog = threading.Timer(SIM_UNSEEN_S, self._check_sim_seen)
+        watchdog.daemon = True
+        watchdog.start()
+        try:
+            return self._loop(controller, params, config, pose_sub, msg_pub, cmd_pub)
+        finally:
+            watchdog.cancel()
+            for entity in reversed(entities):
+                entity.undeclare()
+
+    def _loop(
+        self, controller, params: RobotParams, config: wire.AgentConfig, pose_sub, msg_pub, cmd_pub
+    ) -> int:
+        lockstep = self._lockstep
+        neighbours = list(config.neighbours)
+        weight_of = dict(zip(config.neighbours, config.weights, strict=True))
+        counters, dim = self.counters, controller.message_dim
+        while True:
+            pose = self._next_pose(pose_sub)
+            if pose is None:
+                self.record["exit_reason"] = "stopped" if self._stop else "sim gone"
+                return EXIT_DONE
+            tick = self._last_tick = pose.tick
+            self._drain_liveliness()
+            self._drain_messages()
+            live = self._neighbours_alive
+            if lockstep and tick > 0 and not all(tick - 1 in self._inbox[j] for j in live):
+                wait_start_s = time.perf_counter()
+                self._wait_for_messages(tick, wait_start_s + config.neighbour_deadline_s)
+                counters.neighbour_wait_s.append(time.perf_counter() - wait_start_s)
+                counters.ticks_waited += 1
+            compute_start_s = time.perf_counter()
+            heard, messages = [], []
+            for j in neighbours:
+                box = self._inbox[j]
+                if lockstep:
+                    values = box.get(tick - 1)
+                else:
+                    recent = [k for k in box if tick - STALE_TICKS <= k < tick]
+                    values = box[max(recent)] if recent else None
+                if values is not None:
+                    heard.append(j)
+                    messages.append(values)
+                elif tick > 0:
+                    counters.messages_lost += 1
+            oldest = tick - (1 if lockstep else STALE_TICKS)
+            for box in self._inbox.values():  # drop what can no longer be used
+                for k in [k for k in box if k < oldest]:
+                    del box[k]
+            inbox = np.array(messages).reshape(len(heard), dim)
+            weights = np.array([weight_of[j] for j in heard])
+            u_world, message = controller.act_one(pose.array(), inbox, weights)
+            wheels = wheels_one(u_world, pose.theta_rad, params)
+            msg_pub.put(wire.encode_message(tick, message))
+            cmd_pub.put(wire.encode_command(tick, wheels))
+            counters.compute_s.append(time.perf_counter() - compute_start_s)
+            counters.ticks += 1
+            counters.commands_sent += 1
+
+    def _write_record(self) -> None:
+        counters = self.counters
+        self.record.update(
+            ticks=counters.ticks,
+            last_tick=self._last_tick,
+            commands_sent=counters.commands_sent,
+            poses={
+                "received": counters.poses_received,
+                "invalid": counters.poses_invalid,
+                "skipped": counters.poses_skipped,
+            },
+            messages={
+                "received": counters.messages_received,
+                "invalid": counters.messages_invalid,
+                "lost": counters.messages_lost,
+                "late": counters.messages_late,
+            },
+            ticks_waited=counters.ticks_waited,
+            neighbour_wait_ms=_stats_ms(counters.neighbour_wait_s),
+            compute_ms=_stats_ms(counters.compute_s),
+            alive_s=round(time.perf_counter() - self._started_s, 4),
+            cpu_s=round(time.process_time(), 4),  # every thread of this process (since the fork)
+            main_thread_cpu_s=round(time.thread_time(), 4),  # of the thread running the agent
+            heavy_modules=sorted(name for name in ("torch", "pybullet", "numba") if name in sys.modules),
+        )
+        if self.options.log_dir is None:
+            return
+        path = Path(self.options.log_dir) / f"agent_{self.robot}.json"
+        temporary = path.with_suffix(".json.tmp")
+        temporary.write_text(json.dumps(self.record, indent=2) + "\n")
+        os.replace(temporary, path)

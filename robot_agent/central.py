@@ -1,0 +1,192 @@
+"""``python -m robot_agent.central``: the centralized expert as ONE process (label: centralized).
+
+Thesis eq. 3.1 on the complete graph needs every robot's pose at tick k, so it cannot run on board
+the robots: this single process subscribes to every pose (``swarm/<run>/robot/*/pose``, the one
+wildcard over robots in the runtime, and the reason the controller is not decentralized),
+waits for all poses of tick k, and publishes every robot's wheel command for tick k. It holds the
+liveliness token of every robot's controller (``alive/agent/<i>``), so the sim waits for it as
+for N agents, and records itself in ``<log-dir>/central.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import socket
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import zenoh
+
+from swarm import wire
+from swarm.experts import complete_consensus_velocity
+from swarm.procs import die_with_parent
+from swarm.robot import RobotParams, controlled_point, point_velocity_to_wheels
+
+POSE_DEADLINE_S = 1.0
+"""Longest the central controller waits for the rest of a tick's poses once the first one came."""
+
+
+class CentralController:
+    def __init__(self, run: str, connect: list[str], lease_ms: int, startup_timeout_s: float, log_dir):
+        self.keys = wire.Keys(run)
+        self.connect = connect
+        self.lease_ms = lease_ms
+        self.startup_timeout_s = startup_timeout_s
+        self.log_dir = Path(log_dir) if log_dir else None
+        self._cond = threading.Condition()
+        self._stop = False
+        self._sim_alive: bool | None = None
+        self._poses: dict[int, dict[int, wire.Pose]] = {}  # tick -> robot -> pose
+        self.record: dict = {
+            "role": "centralized",
+            "pid": os.getpid(),
+            "host": socket.gethostname(),
+            "run": run,
+            "subscriptions": [],
+            "liveliness_subscriptions": [],
+            "publications": [],
+            "liveliness_tokens": [],
+            "ticks": 0,
+            "poses_invalid": 0,
+            "incomplete_ticks": 0,
+            "exit_reason": None,
+        }
+
+    def request_stop(self, *_: object) -> None:
+        self._stop = True
+
+    def _on_sim_alive(self, sample: zenoh.Sample) -> None:
+        with self._cond:
+            self._sim_alive = sample.kind == zenoh.SampleKind.PUT
+            self._cond.notify_all()
+
+    def _on_pose(self, sample: zenoh.Sample) -> None:
+        robot = self.keys.robot_of(str(sample.key_expr), "pose")
+        pose = wire.decode_pose(sample.payload.to_bytes())
+        with self._cond:
+            if pose is None or robot is None:
+                self.record["poses_invalid"] += 1
+                return
+            self._poses.setdefault(pose.tick, {})[robot] = pose
+            self._cond.notify_all()
+
+    def _wait(self, ready, until_s: float) -> bool:
+        while not ready():
+            remaining = until_s - time.perf_counter()
+            if remaining <= 0 or self._stop or self._sim_alive is False:
+                return False
+            self._cond.wait(min(remaining, 0.1))
+        return True
+
+    def run(self) -> int:
+        started_s = time.perf_counter()
+        session = None
+        while session is None and not self._stop and time.perf_counter() - started_s < self.startup_timeout_s:
+            try:
+                session = zenoh.open(wire.session_config("client", self.connect, (), self.lease_ms))
+            except zenoh.ZError:
+                time.sleep(0.05)
+        if session is None:
+            self.record["exit_reason"] = "could not connect"
+            self._write_record()
+            return 1
+        try:
+            return self._run(session, started_s)
+        finally:
+            session.close()
+            self._write_record()
+
+    def _fetch_config(self, session: zenoh.Session, started_s: float) -> wire.AgentConfig | None:
+        while not self._stop and time.perf_counter() - started_s < self.startup_timeout_s:
+            for reply in session.get(self.keys.config(0), timeout=1.0):
+                if reply.ok is not None:
+                    return wire.decode_config(reply.ok.payload.to_bytes())
+            time.sleep(0.05)
+        return None
+
+    def _run(self, session: zenoh.Session, started_s: float) -> int:
+        keys, record = self.keys, self.record
+        entities = [session.liveliness().declare_subscriber(keys.alive_sim, self._on_sim_alive, history=True)]
+        record["liveliness_subscriptions"].append(keys.alive_sim)
+        config = self._fetch_config(session, started_s)
+        if config is None:
+            record["exit_reason"] = "no config from the sim"
+            return 1
+        count, gain = config.robot_count, config.gain
+        params = RobotParams(**config.robot_params)
+        entities.append(session.declare_subscriber(keys.all_poses, self._on_pose))
+        record["subscriptions"].append(keys.all_poses)
+        options = wire.publisher_options(config.mode)
+        publishers = [session.declare_publisher(keys.cmd(i), **options) for i in range(count)]
+        record["publications"] = [keys.cmd(i) for i in range(count)]
+        entities += publishers
+        for i in range(count):
+            entities.append(session.liveliness().declare_token(keys.alive_agent(i)))
+            record["liveliness_tokens"].append(keys.alive_agent(i))
+        record["ready_s"] = round(time.perf_counter() - started_s, 4)
+        last_tick = -1
+        try:
+            while True:
+                with self._cond:
+                    self._wait(lambda last=last_tick: any(k > last for k in self._poses), float("inf"))
+                    if self._stop or self._sim_alive is False:
+                        record["exit_reason"] = "stopped" if self._stop else "sim gone"
+                        return 0
+                    tick = min(k for k in self._poses if k > last_tick)
+                    self._wait(
+                        lambda tick=tick: len(self._poses[tick]) == count,
+                        time.perf_counter() + POSE_DEADLINE_S,
+                    )
+                    got = self._poses.pop(tick)
+                    for old in [k for k in self._poses if k <= tick]:
+                        del self._poses[old]
+                last_tick = tick
+                robots = sorted(got)
+                record["incomplete_ticks"] += len(robots) < count
+                poses = np.array([got[i].array() for i in robots])
+                u_world = complete_consensus_velocity(controlled_point(poses, params.offset_m), gain)
+                wheels = point_velocity_to_wheels(u_world, poses[:, 2], params)
+                for row, i in enumerate(robots):
+                    publishers[i].put(wire.encode_command(tick, wheels[row]))
+                record["ticks"] += 1
+        finally:
+            for entity in reversed(entities):
+                entity.undeclare()
+
+    def _write_record(self) -> None:
+        if self.log_dir is None:
+            return
+        path = self.log_dir / "central.json"
+        path.write_text(json.dumps(self.record, indent=2) + "\n")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m robot_agent.central",
+        description="The centralized expert (eq. 3.1 on the complete graph) as one process for all robots.",
+    )
+    parser.add_argument("--connect", action="append", help="sim endpoint (default: tcp/127.0.0.1:7447)")
+    parser.add_argument("--run", default="run", help="run id (default: run)")
+    parser.add_argument("--lease-ms", type=int, default=1000)
+    parser.add_argument("--startup-timeout", type=float, default=60.0)
+    parser.add_argument("--log-dir", help="write central.json here")
+    parser.add_argument("--die-with-parent", action="store_true")
+    args = parser.parse_args(argv)
+    if args.die_with_parent:
+        die_with_parent()
+    central = CentralController(
+        args.run, args.connect or ["tcp/127.0.0.1:7447"], args.lease_ms, args.startup_timeout, args.log_dir
+    )
+    signal.signal(signal.SIGTERM, central.request_stop)
+    signal.signal(signal.SIGINT, central.request_stop)
+    return central.run()
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,391 @@
+"""The sim server: PyBullet physics of the robots behind Zenoh (DESIGN.md, "The distributed runtime").
+
+Every control tick k it reads the axle-centre poses, streams them to ``trajectory.jsonl`` and
+publishes robot i's pose on ``swarm/<run>/robot/<i>/pose`` (its own key); it applies the wheel
+commands that came back on ``robot/<i>/cmd`` (saturated again here, for safety) and advances the
+physics by one control period.
+
+``lockstep`` (deterministic): after publishing tick k it waits until every *live* agent's command
+for tick k has arrived, or ``sim.deadline_s`` has passed, then steps. A command that misses the
+deadline is dropped (counted); the robot keeps its last command until ``sim.watchdog_s`` of sim
+time without a fresh one, then stops. An agent whose liveliness token disappears (crash, SIGKILL,
+lease expiry of a frozen process) is not waited for and its robot stops at the next tick.
+
+``realtime``: physics runs on the wall clock, one control period per period of wall time; the
+latest command of each robot applies at the next tick boundary; a robot without a fresh command
+for ``sim.watchdog_s`` of wall time, or whose agent died, stops.
+
+The server also answers ``swarm/<run>/config/<i>`` queries with robot i's configuration
+(``swarm.wire.AgentConfig``: scenario, robot parameters, graph neighbours, controller, policy
+file) and holds the liveliness token ``swarm/<run>/alive/sim``; agents exit when it goes away.
+Each ``trajectory.jsonl`` line also carries ``wheels``: the (saturated) wheel speeds applied from
+that tick to the next, so the controller's timing can be checked after the run. Per-tick statistics
+(ticks served, command latency) go to ``server_stats.json``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import signal
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import zenoh
+
+from sim_server.physics import PhysicsWorld
+from swarm import wire
+from swarm.results import TrajectoryWriter, prepare_results_dir
+from swarm.robot import saturate_wheels
+from swarm.scenario import Scenario
+
+EXIT_DONE, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 3
+
+
+@dataclass
+class ServerOptions:
+    run: str
+    out_dir: Path
+    listen: list[str]
+    connect: list[str] = field(default_factory=list)
+    zenoh_mode: str = "router"
+    lease_ms: int = 1000
+    startup_timeout_s: float = 60.0
+    policy: bytes | None = None
+    quiet: bool = False
+
+
+def agent_configs(scenario: Scenario, run: str, policy: bytes | None) -> list[wire.AgentConfig]:
+    """Each robot's configuration: its neighbours (and link weights) on the scenario's fixed graph."""
+    adjacency = scenario.adjacency()
+    if adjacency is None:
+        raise ValueError("disk topologies are not supported by the distributed runtime yet")
+    common = {
+        "run": run,
+        "robot_count": scenario.robots.count,
+        "controller": scenario.controller.kind,
+        "gain": scenario.controller.gain,
+        "robot_params": scenario.robot.model_dump(),
+        "mode": scenario.sim.mode,
+        "control_period_s": scenario.sim.control_period_s,
+        "neighbour_deadline_s": scenario.sim.neighbour_deadline_s,
+        "scenario": scenario.model_dump(mode="json"),
+        "policy": policy,
+    }
+    configs = []
+    for i, row in enumerate(adjacency):
+        neighbours = tuple(int(j) for j in np.flatnonzero(row))
+        configs.append(
+            wire.AgentConfig(
+                robot=i, neighbours=neighbours, weights=tuple(float(row[j]) for j in neighbours), **common
+            )
+        )
+    return configs
+
+
+def _percentiles_ms(samples_s: list[float]) -> dict[str, float | int | None]:
+    if not samples_s:
+        return {"count": 0, "p50": None, "p90": None, "p99": None, "max": None, "mean": None}
+    values = np.asarray(samples_s) * 1e3
+    p50, p90, p99 = np.percentile(values, [50, 90, 99])
+    return {
+        "count": len(values),
+        "p50": round(float(p50), 4),
+        "p90": round(float(p90), 4),
+        "p99": round(float(p99), 4),
+        "max": round(float(values.max()), 4),
+        "mean": round(float(values.mean()), 4),
+    }
+
+
+class SimServer:
+    """One run of the sim server; :meth:`serve` returns the process exit status."""
+
+    def __init__(self, scenario: Scenario, options: ServerOptions):
+        self.scenario = scenario
+        self.options = options
+        self.keys = wire.Keys(options.run)
+        self.count = scenario.robots.count
+        self.dt_s = scenario.sim.control_period_s
+        self._configs = [wire.encode_config(c) for c in agent_configs(scenario, options.run, options.policy)]
+        self._robot_of_cmd = {self.keys.cmd(i): i for i in range(self.count)}
+        self._cond = threading.Condition()
+        self._stop = False
+        self._tick = -1
+        self._alive: set[int] = set()
+        self._cmds: dict[int, tuple[wire.Command, float]] = {}  # lockstep: this tick's; realtime: latest
+        self._published_at_s: dict[int, float] = {}
+        self.stats = {
+            "invalid_commands": 0,
+            "late_commands": 0,
+            "future_commands": 0,
+            "config_queries": 0,
+            "agent_events": [],
+        }
+
+    # ------------------------------------------------------------------ callbacks (zenoh threads)
+    def _on_cmd(self, sample: zenoh.Sample) -> None:
+        now_s = time.perf_counter()
+        robot = self._robot_of_cmd.get(str(sample.key_expr))
+        cmd = wire.decode_command(sample.payload.to_bytes())
+        with self._cond:
+            if cmd is None or robot is None:
+                self.stats["invalid_commands"] += 1
+                return
+            lockstep = self.scenario.sim.mode == "lockstep"
+            if cmd.tick > self._tick:
+                self.stats["future_commands"] += 1
+                return
+            if lockstep and cmd.tick < self._tick:
+                self.stats["late_commands"] += 1
+                return
+            previous = self._cmds.get(robot)
+            if previous is None or previous[0].tick <= cmd.tick:
+                self._cmds[robot] = (cmd, now_s)
+            # Wake the main thread once per tick, not once per command (realtime: never, it keeps time).
+            if lockstep and len(self._cmds) >= len(self._alive) and self._alive.issubset(self._cmds):
+                self._cond.notify_all()
+
+    def _on_alive(self, sample: zenoh.Sample) -> None:
+        robot = self.keys.robot_of(str(sample.key_expr), "alive")
+        if robot is None or robot >= self.count:
+            return
+        with self._cond:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self._alive.add(robot)
+                event = "alive"
+            else:
+                self._alive.discard(robot)
+                event = "gone"
+            self.stats["agent_events"].append({"robot": robot, "event": event, "tick": self._tick})
+            self._cond.notify_all()
+
+    def _on_query(self, query: zenoh.Query) -> None:
+        key = str(query.key_expr)
+        robot = self.keys.robot_of(key, "config")
+        last = key.rsplit("/", 1)[-1]
+        if robot is None and last.isdigit() and len(last) <= 6:  # a wildcard query, e.g. swarm/*/config/3
+            robot = int(last)
+            if robot < self.count and not query.key_expr.intersects(zenoh.KeyExpr(self.keys.config(robot))):
+                return  # not about this run's keys
+        with self._cond:
+            self.stats["config_queries"] += 1
+        if robot is None or robot >= self.count:
+            query.reply_err(f"no robot {robot} in this run of {self.count} robots".encode())
+            return
+        query.reply(self.keys.config(robot), self._configs[robot])
+
+    # ------------------------------------------------------------------ main thread
+    def request_stop(self, *_: object) -> None:
+        self._stop = True  # read by the main loop; waits are sliced so it reacts within 0.1 s
+
+    def _log(self, text: str) -> None:
+        if not self.options.quiet:
+            print(f"sim_server: {text}", flush=True)
+
+    def _wait(self, ready, until_s: float) -> bool:
+        """Wait (lock held by the caller) until ``ready()`` or the deadline or a stop request."""
+        while not ready():
+            remaining = until_s - time.perf_counter()
+            if remaining <= 0 or self._stop:
+                return False
+            self._cond.wait(min(remaining, 0.1))
+        return True
+
+    def serve(self) -> int:
+        scenario, options = self.scenario, self.options
+        sim = scenario.sim
+        prepare_results_dir(options.out_dir, scenario)
+        started_s = time.perf_counter()
+        world = PhysicsWorld(scenario.robot, scenario.initial_poses(), sim.physics_hz, sim.solver_iterations)
+        config = wire.session_config(options.zenoh_mode, options.connect, options.listen, options.lease_ms)
+        outcome = EXIT_FAILED
+        try:
+            with zenoh.open(config) as session:
+                token = session.liveliness().declare_token(self.keys.alive_sim)
+                queryable = session.declare_queryable(self.keys.all_configs, self._on_query)
+                cmd_sub = session.declare_subscriber(self.keys.all_cmds, self._on_cmd)
+                alive_sub = session.liveliness().declare_subscriber(
+                    self.keys.all_alive_agents, self._on_alive, history=True
+                )
+                stream = wire.publisher_options(sim.mode)
+                publishers = [
+                    session.declare_publisher(self.keys.pose(i), **stream) for i in range(self.count)
+                ]
+                self._log(f"run {options.run}: {self.count} robots, listening on {options.listen}")
+                with self._cond:
+                    everyone = self._wait(
+                        lambda: len(self._alive) == self.count, started_s + options.startup_timeout_s
+                    )
+                    alive_at_start = len(self._alive)
+                self.stats["startup_s"] = time.perf_counter() - started_s
+                self.stats["agents_ready_unix_s"] = (
+                    time.time()
+                )  # the runner's start-up clock is the wall clock
+                self.stats["cpu_ready_s"] = time.process_time()
+                self.stats["main_thread_cpu_ready_s"] = time.thread_time()
+                if not everyone:
+                    why = "interrupted" if self._stop else f"after {options.startup_timeout_s:g} s"
+                    self._log(f"only {alive_at_start} of {self.count} agents came up ({why})")
+                    outcome = EXIT_INTERRUPTED if self._stop else EXIT_FAILED
+                else:
+                    self._log(f"all {self.count} agents alive after {self.stats['startup_s']:.2f} s")
+                    loop = self._lockstep if sim.mode == "lockstep" else self._realtime
+                    outcome = loop(world, publishers)
+                for entity in (alive_sub, cmd_sub, queryable, token, *publishers):
+                    entity.undeclare()
+        finally:
+            world.close()
+            self.stats["wall_s"] = time.perf_counter() - started_s
+            self.stats["cpu_s"] = time.process_time()  # every thread of this process, since it started
+            self.stats["main_thread_cpu_s"] = time.thread_time()
+            self._write_stats(outcome)
+        return outcome
+
+    def _publish(self, publishers: list, tick: int, poses: np.ndarray) -> None:
+        time_s = tick * self.dt_s
+        with self._cond:
+            self._tick = tick
+            if self.scenario.sim.mode == "lockstep":
+                self._cmds.clear()
+            self._published_at_s[tick] = time.perf_counter()
+        for publisher, pose in zip(publishers, poses.tolist(), strict=True):
+            publisher.put(wire.encode_pose(tick, time_s, pose))
+
+    def _lockstep(self, world: PhysicsWorld, publishers: list) -> int:
+        sim = self.scenario.sim
+        steps = self.scenario.steps
+        wheels = np.zeros((self.count, 2))
+        last_fresh_tick = np.zeros(self.count, dtype=int)
+        watchdog_ticks = max(1, math.ceil(sim.watchdog_s / self.dt_s - 1e-9))
+        served, latencies_s, missed_by_robot = 0, [], np.zeros(self.count, dtype=int)
+        physics_s, physics_cpu_s = 0.0, 0.0
+        start_s = time.perf_counter()
+        with TrajectoryWriter(self.options.out_dir / "trajectory.jsonl") as trajectory:
+            for tick in range(steps + 1):
+                poses = world.poses()
+                if tick == steps:
+                    trajectory.write(tick, tick * self.dt_s, poses)
+                    break
+                if self._stop:
+                    return EXIT_INTERRUPTED
+                self._publish(publishers, tick, poses)
+                deadline_s = self._published_at_s[tick] + sim.deadline_s
+                with self._cond:
+                    all_in = self._wait(lambda: self._alive.issubset(self._cmds), deadline_s)
+                    cmds, alive = dict(self._cmds), set(self._alive)
+                if self._stop:
+                    return EXIT_INTERRUPTED
+                served += all_in
+                for i in range(self.count):
+                    if i in cmds:
+                        command, arrived_s = cmds[i]
+                        wheels[i] = (command.left_mps, command.right_mps)
+                        last_fresh_tick[i] = tick
+                        latencies_s.append(arrived_s - self._published_at_s[tick])
+                    elif i not in alive or tick - last_fresh_tick[i] >= watchdog_ticks:
+                        wheels[i] = 0.0
+                    if i in alive and i not in cmds:
+                        missed_by_robot[i] += 1
+                del self._published_at_s[tick]
+                wheels = saturate_wheels(wheels, self.scenario.robot.v_max_mps)
+                trajectory.write(tick, tick * self.dt_s, poses, wheels=wheels.tolist())
+                world.set_wheel_speeds(wheels)
+                physics_start_s, physics_start_cpu_s = time.perf_counter(), time.thread_time()
+                world.step(self.dt_s)
+                physics_s += time.perf_counter() - physics_start_s
+                physics_cpu_s += time.thread_time() - physics_start_cpu_s
+        self.stats.update(
+            ticks=steps,
+            ticks_served=served,
+            ticks_missed=steps - served,
+            missed_commands_by_robot=missed_by_robot.tolist(),
+            latency_ms=_percentiles_ms(latencies_s),
+            physics_ms_per_tick=1e3 * physics_s / max(steps, 1),
+            physics_cpu_ms_per_tick=1e3 * physics_cpu_s / max(steps, 1),
+        )
+        loop_wall_s = time.perf_counter() - start_s
+        self.stats.update(loop_wall_s=loop_wall_s, realtime_factor=steps * self.dt_s / loop_wall_s)
+        return EXIT_DONE
+
+    def _realtime(self, world: PhysicsWorld, publishers: list) -> int:
+        sim = self.scenario.sim
+        steps = self.scenario.steps
+        wheels = np.zeros((self.count, 2))
+        applied_tick = np.full(self.count, -1)
+        last_fresh_s = np.full(self.count, -math.inf)
+        served, latencies_s, overruns = 0, [], 0
+        physics_s, physics_cpu_s = 0.0, 0.0
+        start_s = time.perf_counter()
+        with TrajectoryWriter(self.options.out_dir / "trajectory.jsonl") as trajectory:
+            for tick in range(steps + 1):
+                poses = world.poses()
+                if tick == steps:
+                    trajectory.write(tick, tick * self.dt_s, poses)
+                    break
+                self._publish(publishers, tick, poses)
+                boundary_s = start_s + (tick + 1) * self.dt_s
+                with self._cond:
+                    self._wait(lambda: False, boundary_s)
+                    cmds, alive = dict(self._cmds), set(self._alive)
+                if self._stop:
+                    return EXIT_INTERRUPTED
+                now_s = time.perf_counter()
+                overruns += now_s > boundary_s + 0.5 * self.dt_s
+                fresh = 0
+                for i in range(self.count):
+                    if i in cmds and cmds[i][0].tick > applied_tick[i]:
+                        command, arrived_s = cmds[i]
+                        wheels[i] = (command.left_mps, command.right_mps)
+                        applied_tick[i] = command.tick
+                        last_fresh_s[i] = arrived_s
+                        fresh += command.tick == tick
+                        sent_s = self._published_at_s.get(command.tick)
+                        if sent_s is not None:
+                            latencies_s.append(arrived_s - sent_s)
+                    if i not in alive or now_s - last_fresh_s[i] > sim.watchdog_s:
+                        wheels[i] = 0.0
+                served += fresh >= len(alive)
+                self._published_at_s.pop(tick - 20, None)
+                wheels = saturate_wheels(wheels, self.scenario.robot.v_max_mps)
+                trajectory.write(tick, tick * self.dt_s, poses, wheels=wheels.tolist())
+                world.set_wheel_speeds(wheels)
+                physics_start_s, physics_start_cpu_s = time.perf_counter(), time.thread_time()
+                world.step(self.dt_s)
+                physics_s += time.perf_counter() - physics_start_s
+                physics_cpu_s += time.thread_time() - physics_start_cpu_s
+        wall_s = time.perf_counter() - start_s
+        self.stats.update(
+            ticks=steps,
+            ticks_served=served,
+            ticks_missed=steps - served,
+            latency_ms=_percentiles_ms(latencies_s),
+            overruns=overruns,
+            physics_ms_per_tick=1e3 * physics_s / max(steps, 1),
+            physics_cpu_ms_per_tick=1e3 * physics_cpu_s / max(steps, 1),
+            loop_wall_s=wall_s,
+            realtime_factor=steps * self.dt_s / wall_s if wall_s > 0 else None,
+        )
+        return EXIT_DONE
+
+    def _write_stats(self, outcome: int) -> None:
+        stats = {
+            "run": self.options.run,
+            "mode": self.scenario.sim.mode,
+            "robots": self.count,
+            "control_period_s": self.dt_s,
+            "deadline_s": self.scenario.sim.deadline_s,
+            "exit": {EXIT_DONE: "done", EXIT_FAILED: "failed", EXIT_INTERRUPTED: "interrupted"}.get(outcome),
+            **self.stats,
+        }
+        path = self.options.out_dir / "server_stats.json"
+        path.write_text(json.dumps(stats, indent=2) + "\n")
+
+
+def install_signal_handlers(server: SimServer) -> None:
+    """SIGTERM and SIGINT end the run cleanly: the loop stops and the Zenoh session is closed."""
+    signal.signal(signal.SIGTERM, server.request_stop)
+    signal.signal(signal.SIGINT, server.request_stop)

@@ -1,0 +1,237 @@
+"""Tests for swarm.wire: key expressions, message round trips, and rejection of malformed input
+(decoding returns None, never raises)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import msgpack
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from swarm import wire
+
+finite = st.floats(min_value=-1e4, max_value=1e4, allow_nan=False, allow_infinity=False)
+ticks = st.integers(min_value=0, max_value=wire.MAX_TICK)
+DECODERS = [wire.decode_pose, wire.decode_command, wire.decode_message, wire.decode_config]
+
+
+def packed(body: dict) -> bytes:
+    return msgpack.packb(body, use_bin_type=True)
+
+
+def a_config(**changes: object) -> wire.AgentConfig:
+    fields = {
+        "run": "r1",
+        "robot": 2,
+        "robot_count": 6,
+        "controller": "local_consensus",
+        "gain": 1.0,
+        "robot_params": {"wheel_radius_m": 0.04, "half_axle_m": 0.1, "offset_m": 0.05, "v_max_mps": 0.5},
+        "neighbours": (1, 3),
+        "weights": (1.0, 0.5),
+        "mode": "lockstep",
+        "control_period_s": 0.05,
+        "neighbour_deadline_s": 0.5,
+        "scenario": {"name": "x", "robots": {"count": 6}},
+        "policy": b"\x00\x01policy",
+    }
+    fields.update(changes)
+    return wire.AgentConfig(**fields)
+
+
+# ----------------------------------------------------------------------------- keys
+
+
+def test_keys_are_per_robot_and_parse_back():
+    keys = wire.Keys("run-1")
+    assert keys.pose(3) == "swarm/run-1/robot/3/pose"
+    assert keys.cmd(3) == "swarm/run-1/robot/3/cmd"
+    assert keys.msg(3) == "swarm/run-1/agent/3/msg"
+    assert keys.config(3) == "swarm/run-1/config/3"
+    assert keys.alive_agent(3) == "swarm/run-1/alive/agent/3"
+    assert keys.alive_sim == "swarm/run-1/alive/sim"
+    for key in (keys.pose(3), keys.cmd(3), keys.msg(3), keys.config(3), keys.alive_agent(3)):
+        assert "*" not in key
+    assert keys.robot_of(keys.pose(12), "pose") == 12
+    assert keys.robot_of(keys.cmd(0), "cmd") == 0
+    assert keys.robot_of(keys.msg(7), "msg") == 7
+    assert keys.robot_of(keys.alive_agent(5), "alive") == 5
+    assert keys.robot_of(keys.config(4), "config") == 4
+    for bad in ("swarm/run-1/robot/x/cmd", "swarm/other/robot/1/cmd", "swarm/run-1/robot/1/pose", "", "a/b"):
+        assert keys.robot_of(bad, "cmd") is None
+
+
+@pytest.mark.parametrize("run", ["", "a/b", "a*", "$x", "a b", "x" * 65, "a?b", "a#b"])
+def test_bad_run_ids_are_refused(run):
+    with pytest.raises(ValueError, match="run id"):
+        wire.Keys(run)
+
+
+def test_session_config_has_explicit_endpoints_and_no_multicast():
+    config = wire.session_config("client", ["tcp/127.0.0.1:7000"], (), lease_ms=800)
+    assert json.loads(config.get_json("mode")) == "client"
+    assert json.loads(config.get_json("connect/endpoints")) == ["tcp/127.0.0.1:7000"]
+    assert json.loads(config.get_json("scouting/multicast/enabled")) is False
+    assert json.loads(config.get_json("transport/link/tx/lease")) == 800
+    with pytest.raises(ValueError, match="zenoh mode"):
+        wire.session_config("server")
+
+
+# ----------------------------------------------------------------------------- round trips
+
+
+@given(tick=ticks, time_s=st.floats(0, 1e6), x=finite, y=finite, theta=st.floats(-math.pi, math.pi))
+def test_pose_round_trip(tick, time_s, x, y, theta):
+    pose = wire.decode_pose(wire.encode_pose(tick, time_s, (x, y, theta)))
+    assert pose == wire.Pose(tick, time_s, x, y, theta)
+
+
+@given(tick=ticks, left=st.floats(-5, 5), right=st.floats(-5, 5))
+def test_command_round_trip(tick, left, right):
+    assert wire.decode_command(wire.encode_command(tick, (left, right))) == wire.Command(tick, left, right)
+
+
+@given(tick=ticks, values=st.lists(finite, min_size=0, max_size=200))
+def test_message_round_trip_is_exact(tick, values):
+    message = wire.decode_message(wire.encode_message(tick, np.array(values)), dim=len(values))
+    assert message is not None and message.tick == tick
+    np.testing.assert_array_equal(message.values, np.array(values, dtype=np.float64))
+
+
+def test_config_round_trip():
+    config = a_config()
+    assert wire.decode_config(wire.encode_config(config)) == config
+    lonely = a_config(policy=None, neighbours=(), weights=())
+    assert wire.decode_config(wire.encode_config(lonely)) == lonely
+
+
+# ----------------------------------------------------------------------------- rejection
+
+
+@settings(max_examples=300, suppress_health_check=[HealthCheck.too_slow])
+@given(data=st.binary(max_size=300))
+def test_random_bytes_never_raise(data):
+    for decode in DECODERS:
+        decode(data)  # None or a validated value; an exception fails the test
+
+
+scalars = st.none() | st.booleans() | st.integers(-(2**63), 2**64 - 1) | st.floats() | st.text(max_size=3)
+values = scalars | st.binary(max_size=24) | st.lists(st.floats(), max_size=3)
+fields = st.fixed_dictionaries(
+    {"v": st.sampled_from([wire.SCHEMA_VERSION, 0, "1", None])},
+    optional={key: values for key in ("k", "t", "x", "y", "th", "l", "r", "m")},
+)
+
+
+@settings(max_examples=300, suppress_health_check=[HealthCheck.too_slow])
+@given(body=fields)
+def test_arbitrary_maps_are_valid_or_none(body):
+    pose = wire.decode_pose(packed(body))
+    assert pose is None or all(math.isfinite(v) for v in (pose.time_s, pose.x_m, pose.y_m, pose.theta_rad))
+    command = wire.decode_command(packed(body))
+    assert command is None or abs(command.left_mps) <= wire.MAX_WHEEL_MPS
+    message = wire.decode_message(packed(body))
+    assert message is None or bool(np.all(np.isfinite(message.values)))
+
+
+GOOD_POSE = {"v": wire.SCHEMA_VERSION, "k": 3, "t": 0.15, "x": 1.0, "y": -2.0, "th": 0.5}
+
+
+@pytest.mark.parametrize(
+    "change",
+    [
+        {"v": 99},
+        {"v": None},
+        {"k": -1},
+        {"k": True},
+        {"k": 1.5},
+        {"k": wire.MAX_TICK + 1},
+        {"t": -0.1},
+        {"x": float("nan")},
+        {"y": float("inf")},
+        {"x": 1e9},
+        {"th": 100.0},
+        {"x": "1.0"},
+        {"x": None},
+    ],
+    ids=repr,
+)
+def test_malformed_pose_is_rejected(change):
+    assert wire.decode_pose(packed(GOOD_POSE)) is not None
+    assert wire.decode_pose(packed({**GOOD_POSE, **change})) is None
+
+
+@pytest.mark.parametrize("missing", ["v", "k", "t", "x", "y", "th"])
+def test_pose_missing_field_is_rejected(missing):
+    body = {key: value for key, value in GOOD_POSE.items() if key != missing}
+    assert wire.decode_pose(packed(body)) is None
+
+
+def test_malformed_commands_and_messages_are_rejected():
+    good = {"v": wire.SCHEMA_VERSION, "k": 1, "l": 0.1, "r": 0.2}
+    assert wire.decode_command(packed(good)) is not None
+    for change in ({"l": float("nan")}, {"r": 1e3}, {"k": "1"}, {"l": [0.1]}):
+        assert wire.decode_command(packed({**good, **change})) is None
+    assert wire.decode_command(packed([1, 2, 3])) is None
+    assert wire.decode_command(b"\xc1") is None  # never-used msgpack byte
+    assert wire.decode_command(packed({**good, "pad": "x" * 2000})) is None  # oversized
+
+    message = {"v": wire.SCHEMA_VERSION, "k": 1, "m": np.zeros(2).tobytes()}
+    assert wire.decode_message(packed(message), dim=2) is not None
+    assert wire.decode_message(packed(message), dim=3) is None  # wrong length for this controller
+    assert wire.decode_message(packed({**message, "m": b"\x00" * 12})) is None  # not whole float64s
+    assert wire.decode_message(packed({**message, "m": np.array([np.nan, 0.0]).tobytes()})) is None
+    assert wire.decode_message(packed({**message, "m": np.array([1e12, 0.0]).tobytes()})) is None
+    assert wire.decode_message(packed({**message, "m": [0.0, 0.0]})) is None
+    for size in (2, 100):  # short vectors are checked in plain floats, long ones with numpy
+        for bad in (np.nan, np.inf, 1e12):
+            values = np.zeros(size)
+            values[-1] = bad
+            assert wire.decode_message(packed({**message, "m": values.tobytes()})) is None
+
+
+def test_run_id_discovery_keys():
+    assert wire.Keys.any_run_config(3) == "swarm/*/config/3"
+    assert wire.Keys.run_of_config(wire.Keys("bench-1_a.b").config(3)) == "bench-1_a.b"
+    for key in (
+        "swarm/r/config/x",
+        "swarm/r/config",
+        "swarm/*/config/3",
+        "other/r/config/3",
+        "swarm/r/pose/3",
+    ):
+        assert wire.Keys.run_of_config(key) is None
+
+
+@pytest.mark.parametrize(
+    "change",
+    [
+        {"robot": 6},
+        {"robot_count": 0},
+        {"neighbours": (2,)},  # itself
+        {"neighbours": (1, 1)},
+        {"neighbours": (1, 9)},
+        {"weights": (1.0,)},
+        {"gain": float("nan")},
+        {"control_period_s": 0.0},
+        {"neighbour_deadline_s": -1.0},
+        {"robot_params": {"offset_m": "far"}},
+        {"scenario": []},
+        {"policy": "text"},
+    ],
+    ids=repr,
+)
+def test_malformed_config_is_rejected(change):
+    assert wire.decode_config(wire.encode_config(a_config(**change))) is None
+
+
+def test_config_without_a_field_is_rejected():
+    body = msgpack.unpackb(wire.encode_config(a_config()), raw=False)
+    for key in body:
+        if key not in ("v", "policy"):
+            partial = {k: v for k, v in body.items() if k != key}
+            assert wire.decode_config(packed(partial)) is None, key
