@@ -10,6 +10,7 @@ large batches (and cost a lot when the cores are busy), see ``PARALLEL_MIN_ROBOT
 from __future__ import annotations
 
 import math
+import os
 
 import numba
 import numpy as np
@@ -215,8 +216,9 @@ def _diameter_above(positions: np.ndarray, threshold_m: float, above: np.ndarray
         above[env] = found
 
 
-# Robots (rows) per call from which the multi-threaded variant is used.
-PARALLEL_MIN_ROBOTS = 50_000
+# Robots (rows) per call from which the multi-threaded variant is used (environment variable
+# SWARM_PARALLEL_MIN_ROBOTS overrides it; threads only pay off on otherwise idle cores).
+PARALLEL_MIN_ROBOTS = int(os.environ.get("SWARM_PARALLEL_MIN_ROBOTS", 50_000))
 
 
 def _serial_and_parallel(function):
