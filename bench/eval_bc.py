@@ -48,6 +48,9 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=50)
     parser.add_argument("--max-duration", type=float, default=3000.0)
     parser.add_argument("--reference", action="store_true", help="also run the uniform-weight filter")
+    parser.add_argument(
+        "--also", nargs="+", default=[], metavar="NAME=PATH", help="more policy files to compare"
+    )
     parser.add_argument("--out", default=str(Path(__file__).parent / "results" / "bc_vs_lc"))
     args = parser.parse_args()
     policy = load_policy(args.model)
@@ -55,6 +58,9 @@ def main() -> None:
         "local_consensus": local_consensus,
         "gnn": lambda robot, count: load_policy(args.model, robot, count),
     }
+    for item in args.also:
+        name, path = item.split("=", 1)
+        controllers[name] = lambda robot, count, path=path: load_policy(path, robot, count)
     if args.reference:
         gain = policy.model.get("gain_max_per_s", 20.0)
         controllers["uniform_filter"] = lambda robot, count: UniformFilter(robot, policy.spec.hops, gain)

@@ -51,8 +51,6 @@ def main(argv: list[str] | None = None) -> int:
         policy = None
         model = args.model or scenario.controller.model
         if scenario.controller.kind == "gnn":
-            if model is None:
-                raise ScenarioError("controller.model: controller 'gnn' needs a model file")
             policy = resolve_model_path(model, Path(args.scenario)).read_bytes()
         options = ServerOptions(
             run=args.run,

@@ -13,7 +13,7 @@ from pathlib import Path
 import yaml
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
-DEFAULT_SCENARIO = "scenarios/thesis/cycle-local_consensus.yaml"
+DEFAULT_SCENARIO = "scenarios/thesis/cycle-gnn.yaml"
 EXIT_SUCCESS, EXIT_NOT_MET, EXIT_BAD_INPUT = 0, 1, 2
 
 
@@ -109,6 +109,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         "max_duration_s": args.max_duration,
         "gain": args.gain,
         "v_max_mps": args.v_max,
+        "model": args.model,
     }
     config = config.with_overrides({key: value for key, value in overrides.items() if value is not None})
     out_dir = Path(args.out)
@@ -120,6 +121,41 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             f"  not always converged: {row['topology']} N={row['robots']} {row['controller']}: "
             f"{row['success_rate']:.1%}"
         )
+    return EXIT_SUCCESS if not failed else EXIT_NOT_MET
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    from swarm.evaluate import EvaluateConfig, evaluate
+    from swarm.sweep import SweepConfig
+
+    limits = {}
+    for item in args.limit or []:
+        try:
+            count, starts = (int(part) for part in item.split(":"))
+        except ValueError:
+            raise UsageError(f"--limit: expected N:STARTS, got {item!r}") from None
+        limits[count] = starts
+    if not Path(args.model).is_file():
+        raise UsageError(f"{args.model}: no such policy file")
+    defaults = EvaluateConfig(model=args.model)
+    config = EvaluateConfig(
+        model=args.model,
+        out=args.out,
+        topologies=args.topologies or defaults.topologies,
+        sizes=args.sizes or defaults.sizes,
+        seeds=args.seeds or defaults.seeds,
+        limits=limits,
+        max_duration_s=args.max_duration or defaults.max_duration_s,
+        reuse=args.reuse or [],
+        curve_sizes=args.curve_sizes or defaults.curve_sizes,
+        curve_starts=args.curve_starts or defaults.curve_starts,
+    )
+    SweepConfig(topologies=config.topologies, sizes=config.sizes, seeds=config.seeds).check("command line")
+    rows = evaluate(config, progress=not args.quiet)
+    failed = [row for row in rows if row["controller"] == "gnn" and row["success_rate"] < 1.0]
+    print(f"evaluate: {len(rows)} cells, table in {Path(args.out) / 'evaluation.md'}, plots in {args.out}")
+    for row in failed:
+        print(f"  model not always converged: {row['topology']} N={row['robots']}: {row['success_rate']:.1%}")
     return EXIT_SUCCESS if not failed else EXIT_NOT_MET
 
 
@@ -210,13 +246,41 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--topologies", nargs="+", help="complete cycle line star random disk")
     sweep.add_argument("--sizes", nargs="+", type=int, help="robot counts N")
     sweep.add_argument("--seeds", type=int, help="random starts per cell")
-    sweep.add_argument("--controllers", nargs="+", help="local_consensus centralized")
+    sweep.add_argument("--controllers", nargs="+", help="local_consensus centralized gnn")
+    sweep.add_argument("--model", help="policy file of controller gnn")
     sweep.add_argument("--max-duration", type=float, help="simulated seconds before a start counts as failed")
     sweep.add_argument("--gain", type=float, help="consensus gain K (1/s)")
     sweep.add_argument("--v-max", type=float, help="wheel-speed limit (m/s)")
     sweep.add_argument("--out", default="runs/sweep", help="output directory (default: runs/sweep)")
     sweep.add_argument("--quiet", action="store_true", help="no progress bar")
     sweep.set_defaults(handler=cmd_sweep)
+
+    evaluate = commands.add_parser(
+        "evaluate",
+        help="compare a policy file with local consensus and the centralized expert on a grid",
+        description="Run the model, local consensus and the centralized expert from the same random starts "
+        "on every (topology, N) cell of the batched simulator (swarm sweep's starts, stopping rule and "
+        "cell cache); write evaluation.csv, evaluation.md and plots (max_pairwise over time, ratio to the "
+        "lower bound). Exit 1 when the model did not converge from every start.",
+    )
+    evaluate.add_argument("model", help="policy file (.npz)")
+    evaluate.add_argument("--topologies", nargs="+", help="complete cycle line star random disk")
+    evaluate.add_argument("--sizes", nargs="+", type=int, help="robot counts N (default 6 12 24)")
+    evaluate.add_argument("--seeds", type=int, help="random starts per cell (default 1000)")
+    evaluate.add_argument(
+        "--limit", action="append", metavar="N:STARTS", help="run only the first STARTS starts at N"
+    )
+    evaluate.add_argument(
+        "--max-duration", type=float, help="simulated seconds before a start counts as failed"
+    )
+    evaluate.add_argument(
+        "--reuse", nargs="+", help="results directories whose cached cells to read (swarm sweep)"
+    )
+    evaluate.add_argument("--curve-sizes", nargs="+", type=int, help="N of the max_pairwise-over-time plots")
+    evaluate.add_argument("--curve-starts", type=int, help="starts per max_pairwise curve (default 100)")
+    evaluate.add_argument("--out", default="runs/evaluate", help="output directory (default: runs/evaluate)")
+    evaluate.add_argument("--quiet", action="store_true", help="no progress bar")
+    evaluate.set_defaults(handler=cmd_evaluate)
 
     from swarm.train import ALGORITHMS
 

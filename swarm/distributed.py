@@ -117,8 +117,6 @@ def run_distributed(
         )
     model = None
     if scenario.controller.kind == "gnn":
-        if scenario.controller.model is None:
-            raise ScenarioError("controller.model: controller 'gnn' needs a model file")
         model = resolve_model_path(scenario.controller.model, scenario_path).resolve()
         data = scenario.model_dump(mode="json")
         data["controller"]["model"] = str(model)  # the server reads the copy in the results directory

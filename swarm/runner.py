@@ -27,8 +27,6 @@ def build_controller(scenario: Scenario, scenario_path: Path | None = None) -> B
         from swarm.policy import PolicyFormatError, load_policy
         from swarm.scenario import resolve_model_path
 
-        if spec.model is None:
-            raise ScenarioError("controller.model: controller 'gnn' needs a model file")
         path = resolve_model_path(spec.model, scenario_path)
         try:
             return load_policy(path, scenario.robot, scenario.robots.count)

@@ -31,6 +31,9 @@ ControllerKind = Literal["gnn", "local_consensus", "centralized"]
 MetricName = Literal["max_pairwise", "spread", "thesis_disk"]
 
 
+DEFAULT_MODEL_NAME = "gnn_default.npz"  # in <project root>/models, for controller gnn without a model
+
+
 class ScenarioError(ValueError):
     """A scenario that cannot run; the message is one line for the user."""
 
@@ -317,9 +320,23 @@ def load_scenario(path: str | Path) -> Scenario:
     return scenario
 
 
-def resolve_model_path(model: str, scenario_path: Path | None = None) -> Path:
+def default_model_path() -> Path:
+    """The shipped default policy, ``models/gnn_default.npz`` in the project root."""
+    import swarm
+
+    path = Path(swarm.__file__).resolve().parent.parent / "models" / DEFAULT_MODEL_NAME
+    if not path.is_file():
+        raise ScenarioError(
+            f"controller.model: not given and the default model {path} is missing (see models/README.md)"
+        )
+    return path
+
+
+def resolve_model_path(model: str | None, scenario_path: Path | None = None) -> Path:
     """Find a model file: as given (absolute or from the current directory), then next to the
-    scenario file, then in the project root above the scenario's folder."""
+    scenario file, then in the project root above the scenario's folder; None: the default model."""
+    if model is None:
+        return default_model_path()
     candidates = [Path(model)]
     if scenario_path is not None and not Path(model).is_absolute():
         candidates += [scenario_path.parent / model, scenario_path.parent.parent / model]

@@ -4,12 +4,14 @@ Every cell runs all its random starts as one batch. An environment leaves the ba
 once its metric has stayed at or under the threshold for ``hold_s``; its convergence
 time is the first time after which the metric never rose above the threshold again
 (up to where it was simulated). Starts still above the threshold at ``max_duration_s``
-count as failures.
+count as failures. Controller ``gnn`` runs the policy file ``model`` (its cells are cached under
+the file's hash); on disk graphs every cell also records whether the graph ever disconnected.
 """
 
 from __future__ import annotations
 
 import csv
+import hashlib
 import json
 import math
 from dataclasses import asdict, dataclass, field, fields, replace
@@ -25,6 +27,7 @@ from swarm.robot import RobotParams
 from swarm.scenario import ScenarioError
 
 TOPOLOGIES = ("complete", "cycle", "line", "star", "random", "disk")
+CONTROLLERS = ("local_consensus", "centralized", "gnn")
 
 
 @dataclass(frozen=True)
@@ -43,6 +46,8 @@ class SweepConfig:
     disk_radius_m: float | None = None  # None: the smallest radius that connects every start
     min_separation_m: float = 0.4
     seed: int = 0
+    model: str | None = None  # policy file of controller "gnn"
+    first_starts: int | None = None  # run only the first ones of the `seeds` starts (None: all)
 
     @classmethod
     def from_mapping(cls, data: dict, source: str = "<config>") -> SweepConfig:
@@ -62,8 +67,15 @@ class SweepConfig:
             if topology not in TOPOLOGIES:
                 raise ScenarioError(f"{source}: topologies: unknown topology '{topology}'")
         for controller in self.controllers:
-            if controller not in ("local_consensus", "centralized"):
+            if controller not in CONTROLLERS:
                 raise ScenarioError(f"{source}: controllers: unknown controller '{controller}'")
+        if "gnn" in self.controllers:
+            if self.model is None:
+                raise ScenarioError(f"{source}: model: controller 'gnn' needs a policy file")
+            if not Path(self.model).is_file():
+                raise ScenarioError(f"{source}: model: no such policy file {self.model}")
+        if self.first_starts is not None and not 0 < self.first_starts <= self.seeds:
+            raise ScenarioError(f"{source}: first_starts: must be in 1..seeds")
         if any(size < 2 for size in self.sizes):
             raise ScenarioError(f"{source}: sizes: every N must be at least 2")
         for name in ("seeds", "gain", "v_max_mps", "control_period_s", "threshold_m", "max_duration_s"):
@@ -106,8 +118,31 @@ def connecting_radius(positions: np.ndarray) -> float:
     return largest * 1.0001
 
 
-def make_controller(kind: str, robot: RobotParams, gain: float) -> BatchedController:
+def make_controller(
+    kind: str, robot: RobotParams, gain: float, model: str | None = None, robot_count: int = 0
+) -> BatchedController:
+    if kind == "gnn":
+        from swarm.policy import load_policy
+
+        return load_policy(model, robot, robot_count)
     return LocalConsensus(robot, gain) if kind == "local_consensus" else Centralized(robot, gain)
+
+
+def file_hash(path: str | Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def connected(adjacency: np.ndarray) -> np.ndarray:
+    """``(B, N, N)`` adjacency -> ``(B,)`` bool, every robot reachable from robot 0."""
+    reached = np.zeros(adjacency.shape[:2], dtype=np.float64)
+    reached[:, 0] = 1.0
+    links = adjacency.astype(np.float64)
+    for _ in range(adjacency.shape[1]):
+        grown = np.minimum(1.0, reached + np.einsum("bij,bj->bi", links, reached))
+        if np.array_equal(grown, reached):
+            break
+        reached = grown
+    return reached.min(axis=1) > 0
 
 
 def converge_batch(
@@ -116,10 +151,13 @@ def converge_batch(
     max_duration_s: float,
     hold_s: float,
     on_progress=None,
+    disconnected: np.ndarray | None = None,
 ) -> np.ndarray:
     """Run until every environment has held max_pairwise <= threshold for ``hold_s`` or time runs out.
 
-    Returns the convergence time of each environment (NaN where it never converged).
+    Returns the convergence time of each environment (NaN where it never converged). With
+    ``disconnected`` (a ``(B,)`` bool array), marks there every environment whose communication
+    graph was disconnected at some tick of its run.
     """
     batch = sim.batch_size
     dt = sim.control_period_s
@@ -131,6 +169,8 @@ def converge_batch(
     for tick in range(max_ticks + 1):
         above = _above_threshold(sim.poses, threshold_m)
         last_above[active[above]] = tick
+        if disconnected is not None:
+            disconnected[active[~connected(sim.adjacency())]] = True
         if tick == max_ticks:
             break
         settled = tick - last_above[active] >= hold_ticks
@@ -157,26 +197,42 @@ def _above_threshold(positions: np.ndarray, threshold_m: float) -> np.ndarray:
     return above
 
 
-def run_cell(config: SweepConfig, topology: str, count: int, controller: str, on_progress=None) -> dict:
-    """One (topology, N, controller) cell over ``config.seeds`` random starts."""
+def cell_starts(
+    config: SweepConfig, topology: str, count: int
+) -> tuple[np.ndarray, np.ndarray | None, float | None]:
+    """The starts of a cell: poses ``(B, N, 3)``, adjacency ``(B, N, N)`` (None on disk graphs) and
+    the disk radius (None on fixed graphs); the first ``first_starts`` when that is set."""
     cell_seed = np.random.SeedSequence([config.seed, TOPOLOGIES.index(topology), count])
     rng = np.random.default_rng(cell_seed)
     box = box_for(count)
     poses = random_poses(rng, config.seeds, count, box, box, config.min_separation_m)
     adjacency = cell_graphs(config, topology, count, rng)
-    robot = RobotParams(v_max_mps=config.v_max_mps)
     disk_radius = None
-    if adjacency is None:
+    if adjacency is None:  # the radius connecting all `seeds` starts, even when running fewer
         disk_radius = config.disk_radius_m or connecting_radius(poses[..., :2])
+    if config.first_starts is not None:
+        poses = poses[: config.first_starts]
+        adjacency = None if adjacency is None else adjacency[: config.first_starts]
+    return poses, adjacency, disk_radius
+
+
+def run_cell(config: SweepConfig, topology: str, count: int, controller: str, on_progress=None) -> dict:
+    """One (topology, N, controller) cell over ``config.seeds`` random starts."""
+    poses, adjacency, disk_radius = cell_starts(config, topology, count)
+    robot = RobotParams(v_max_mps=config.v_max_mps)
+    starts = len(poses)
+    disconnected = np.zeros(starts, dtype=bool) if adjacency is None else None
     sim = KinematicSim(
         robot,
-        make_controller(controller, robot, config.gain),
+        make_controller(controller, robot, config.gain, config.model, count),
         config.control_period_s,
         poses,
         adjacency=adjacency,
         disk_radius_m=disk_radius,
     )
-    times = converge_batch(sim, config.threshold_m, config.max_duration_s, config.hold_s, on_progress)
+    times = converge_batch(
+        sim, config.threshold_m, config.max_duration_s, config.hold_s, on_progress, disconnected
+    )
     lower = np.array(
         [metrics.lower_bound_s(start[:, :2], config.threshold_m, config.v_max_mps) for start in poses]
     )
@@ -187,7 +243,7 @@ def run_cell(config: SweepConfig, topology: str, count: int, controller: str, on
     elif topology == "random":
         lambda2 = np.array([graphs.algebraic_connectivity(matrix) for matrix in adjacency])
     else:
-        lambda2 = np.full(config.seeds, graphs.algebraic_connectivity(adjacency[0]))
+        lambda2 = np.full(starts, graphs.algebraic_connectivity(adjacency[0]))
     return {
         "topology": topology,
         "robots": count,
@@ -196,6 +252,7 @@ def run_cell(config: SweepConfig, topology: str, count: int, controller: str, on
         "lower_bound_s": lower,
         "lambda2": lambda2,
         "disk_radius_m": disk_radius,
+        "disconnected": disconnected,
     }
 
 
@@ -223,20 +280,43 @@ def summarize_cell(cell: dict) -> dict:
         "min_ratio_to_lower_bound": stat(ratio, np.min),
         "median_lambda2": float(np.median(cell["lambda2"])),
         "median_time_x_lambda2": stat(times * cell["lambda2"], np.median),
+        "disconnected_rate": None if cell.get("disconnected") is None else float(cell["disconnected"].mean()),
     }
 
 
-def cached_cell(
-    out_dir: Path, config: SweepConfig, topology: str, count: int, controller: str, on_progress=None
-) -> dict:
-    """``run_cell``, with its raw per-start results kept in ``out_dir/cells/``: a sweep that was
-    interrupted, or extended with more sizes or topologies, reuses every cell it already ran with
-    the same settings."""
-    grid = ("topologies", "sizes", "controllers")
+def cell_settings(config: SweepConfig, controller: str) -> dict:
+    """What a cached cell must have been run with: every setting but the grid; the model file's hash
+    instead of its path (gnn only); ``first_starts`` only when set (older caches lack both)."""
+    grid = ("topologies", "sizes", "controllers", "model", "first_starts")
     settings = {key: value for key, value in asdict(config).items() if key not in grid}
-    path = out_dir / "cells" / f"{topology}_{count}_{controller}.npz"
-    if path.is_file():
-        with np.load(path) as saved:
+    if config.first_starts is not None:
+        settings["first_starts"] = config.first_starts
+    if controller == "gnn":
+        settings["model_sha256"] = file_hash(config.model)
+    return settings
+
+
+def cell_path(cells_dir: Path, config: SweepConfig, topology: str, count: int, controller: str) -> Path:
+    suffix = f"-{cell_settings(config, controller)['model_sha256'][:12]}" if controller == "gnn" else ""
+    limit = f"_first{config.first_starts}" if config.first_starts is not None else ""
+    return cells_dir / f"{topology}_{count}_{controller}{suffix}{limit}.npz"
+
+
+def find_cached_cell(
+    out_dir: Path,
+    config: SweepConfig,
+    topology: str,
+    count: int,
+    controller: str,
+    reuse: tuple[Path, ...] = (),
+) -> dict | None:
+    """The cell from ``out_dir/cells`` or a ``reuse`` directory's cells if run with these settings."""
+    settings = cell_settings(config, controller)
+    for base in (out_dir, *reuse):
+        candidate = cell_path(Path(base) / "cells", config, topology, count, controller)
+        if not candidate.is_file():
+            continue
+        with np.load(candidate) as saved:
             if json.loads(str(saved["settings"])) == settings:
                 radius = float(saved["disk_radius_m"])
                 return {
@@ -247,9 +327,31 @@ def cached_cell(
                     "lower_bound_s": saved["lower_bound_s"],
                     "lambda2": saved["lambda2"],
                     "disk_radius_m": None if np.isnan(radius) else radius,
+                    "disconnected": saved["disconnected"] if "disconnected" in saved.files else None,
                 }
+    return None
+
+
+def cached_cell(
+    out_dir: Path,
+    config: SweepConfig,
+    topology: str,
+    count: int,
+    controller: str,
+    on_progress=None,
+    reuse: tuple[Path, ...] = (),
+) -> dict:
+    """``run_cell``, with its raw per-start results kept in ``out_dir/cells/``: a sweep that was
+    interrupted, or extended with more sizes or topologies, reuses every cell it already ran with
+    the same settings. ``reuse``: more results directories whose cells are read (never written)."""
+    cell = find_cached_cell(out_dir, config, topology, count, controller, reuse)
+    if cell is not None:
+        return cell
+    path = cell_path(out_dir / "cells", config, topology, count, controller)
+    settings = cell_settings(config, controller)
     cell = run_cell(config, topology, count, controller, on_progress)
     path.parent.mkdir(parents=True, exist_ok=True)
+    extra = {} if cell["disconnected"] is None else {"disconnected": cell["disconnected"]}
     np.savez_compressed(
         path,
         settings=json.dumps(settings),
@@ -257,6 +359,7 @@ def cached_cell(
         lower_bound_s=cell["lower_bound_s"],
         lambda2=cell["lambda2"],
         disk_radius_m=np.nan if cell["disk_radius_m"] is None else cell["disk_radius_m"],
+        **extra,
     )
     return cell
 

@@ -92,8 +92,10 @@ def test_cli_collect_train_and_run_a_gnn_scenario(tmp_path, capsys):
     assert status in (0, 1)  # ran (whether 3 s sufficed is not the point here)
     outcome = json.loads((out / "metrics.json").read_text())
     assert outcome["controller"] == "gnn" and outcome["initial_metric"] > outcome["final_metric"]
-    assert main(["run", "scenarios/thesis/cycle-local_consensus.yaml", "--controller", "gnn", "--quiet"]) == 2
-    assert "needs a model file" in capsys.readouterr().err
+    assert (
+        main(["run", "scenarios/thesis/cycle-local_consensus.yaml", "--model", "no-such.npz", "--quiet"]) == 2
+    )
+    assert "model file not found" in capsys.readouterr().err
 
 
 def test_shipped_model_beats_local_consensus_on_sparse_graphs():

@@ -4,4 +4,4 @@
 
 from __future__ import annotations
 
-ALGORITHMS: dict[str, str] = {"bc": "swarm.train.bc", "dqn": "swarm.rl.dqn"}
+ALGORITHMS: dict[str, str] = {"bc": "swarm.train.bc", "dagger": "swarm.train.dagger", "dqn": "swarm.rl.dqn"}

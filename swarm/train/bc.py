@@ -62,6 +62,7 @@ class BCConfig:
     feature_scale_m: float = 1.0
     output_scale_mps: float | None = None  # None: the robot's v_max (labels then lie in [-1, 1])
     init: str = "default"  # "xavier_uniform" (thesis) or torch's default
+    init_from: str | None = None  # start from this policy file's weights (same architecture; DAgger)
     # loss on what the robot applies, sat(model(x)) (the label is saturated too); the thesis
     # regressed the raw output
     saturate_output: bool = True
@@ -187,6 +188,10 @@ def train(config: BCConfig) -> Path:
                 nn.init.xavier_uniform_(module.weight)
                 if module.bias is not None:
                     nn.init.zeros_(module.bias)
+    if config.init_from is not None:
+        with np.load(config.init_from, allow_pickle=False) as file:
+            state = {name: torch.from_numpy(file[name]) for name in file.files if name != "__metadata__"}
+        model.load_state_dict(state)
     if config.optimizer == "sgd":
         optimizer = torch.optim.SGD(
             model.parameters(), lr=config.lr, momentum=config.momentum, weight_decay=config.weight_decay
