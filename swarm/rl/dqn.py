@@ -25,7 +25,7 @@ import shlex
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import gymnasium
@@ -40,6 +40,7 @@ from swarm.features import saturate_local_velocity
 from swarm.rl import ENV_ID
 from swarm.rl.consensus_env import make_thesis_vector_env, thesis_config
 from swarm.rl.vector_env import DISCRETE_ACTIONS
+from swarm.train import preset_with_overrides
 
 
 @dataclass(frozen=True)
@@ -100,16 +101,7 @@ TRANSFER: tuple[dict, ...] = (
 
 
 def make_config(preset: str = "default", overrides: dict | None = None) -> DQNConfig:
-    if preset not in PRESETS:
-        raise ValueError(f"unknown dqn preset {preset!r}; choose one of {sorted(PRESETS)}")
-    overrides = dict(overrides or {})
-    known = {item.name for item in fields(DQNConfig)}
-    unknown = sorted(set(overrides) - known)
-    if unknown:
-        raise ValueError(f"unknown dqn option {unknown[0]!r}; known: {sorted(known)}")
-    if "net_arch" in overrides:
-        overrides["net_arch"] = tuple(overrides["net_arch"])
-    config = replace(PRESETS[preset], **overrides)
+    config = preset_with_overrides("dqn", PRESETS, preset, overrides, tuple_fields=("net_arch",))
     thesis_config(**config.env)  # fail early on a bad environment option
     return config
 

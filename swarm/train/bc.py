@@ -25,7 +25,7 @@ import csv
 import json
 import math
 import time
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -37,6 +37,7 @@ from swarm.features import FeatureSpec
 from swarm.models import build_model
 from swarm.models.base import saturate
 from swarm.robot import RobotParams
+from swarm.train import preset_with_overrides
 
 
 @dataclass(frozen=True)
@@ -101,16 +102,7 @@ PRESETS: dict[str, BCConfig] = {
 
 
 def make_config(preset: str = "default", overrides: dict | None = None) -> BCConfig:
-    if preset not in PRESETS:
-        raise ValueError(f"unknown bc preset {preset!r}; choose one of {sorted(PRESETS)}")
-    overrides = dict(overrides or {})
-    known = {item.name for item in fields(BCConfig)}
-    unknown = sorted(set(overrides) - known)
-    if unknown:
-        raise ValueError(f"unknown bc option {unknown[0]!r}; known: {sorted(known)}")
-    if "readout" in overrides:
-        overrides["readout"] = tuple(overrides["readout"])
-    config = replace(PRESETS[preset], **overrides)
+    config = preset_with_overrides("bc", PRESETS, preset, overrides, tuple_fields=("readout",))
     if not Path(config.data).is_file():
         raise ValueError(f"data: no such file {config.data} (make one with 'swarm collect')")
     return config

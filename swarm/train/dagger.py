@@ -20,7 +20,7 @@ import csv
 import json
 import shutil
 import time
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +30,7 @@ from swarm.experts import complete_consensus_velocity
 from swarm.features import saturate_local_velocity
 from swarm.policy import load_policy
 from swarm.robot import RobotParams, rotate, world_to_local
-from swarm.train import bc
+from swarm.train import bc, preset_with_overrides
 
 
 @dataclass(frozen=True)
@@ -57,16 +57,10 @@ PRESETS: dict[str, DAggerConfig] = {"default": DAggerConfig()}
 
 
 def make_config(preset: str = "default", overrides: dict | None = None) -> DAggerConfig:
-    if preset not in PRESETS:
-        raise ValueError(f"unknown dagger preset {preset!r}; choose one of {sorted(PRESETS)}")
     overrides = dict(overrides or {})
-    known = {item.name for item in fields(DAggerConfig)}
-    unknown = sorted(set(overrides) - known)
-    if unknown:
-        raise ValueError(f"unknown dagger option {unknown[0]!r}; known: {sorted(known)}")
     if "eval_cells" in overrides:
-        overrides["eval_cells"] = tuple((str(t), int(n)) for t, n in overrides["eval_cells"])
-    config = replace(PRESETS[preset], **overrides)
+        overrides["eval_cells"] = [(str(t), int(n)) for t, n in overrides["eval_cells"]]
+    config = preset_with_overrides("dagger", PRESETS, preset, overrides, tuple_fields=("eval_cells",))
     if not Path(config.data).is_file():
         raise ValueError(f"data: no such file {config.data} (make one with 'swarm collect')")
     if config.init_policy is not None and not Path(config.init_policy).is_file():
