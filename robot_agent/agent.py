@@ -35,6 +35,7 @@ import socket
 import sys
 import threading
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -125,7 +126,7 @@ class RobotAgent:
         self._sim_unseen = False
         self._blocking = False  # the main thread sits in a recv that a signal may interrupt
         self._main_thread: int | None = None  # set when signals can interrupt the main thread
-        self._inbox: dict[int, dict[int, np.ndarray]] = {}
+        self._inbox: dict[int, dict[int, Sequence[float]]] = {}  # neighbour -> tick -> message
         self._msg_subs: dict[int, zenoh.Subscriber] = {}
         self._alive_subs: dict[int, zenoh.Subscriber] = {}
         self._neighbours_alive: set[int] = set()
@@ -214,15 +215,16 @@ class RobotAgent:
         for j, subscriber in self._msg_subs.items():
             box = self._inbox[j]
             while (sample := subscriber.try_recv()) is not None:
-                message = wire.decode_message(sample.payload.to_bytes(), self._dim)
-                if message is None:
+                decoded = wire.decode_message_values(sample.payload.to_bytes(), self._dim)
+                if decoded is None:
                     counters.messages_invalid += 1
                     continue
                 counters.messages_received += 1
-                if self._lockstep and message.tick < self._last_tick - 1:
+                tick, values = decoded
+                if self._lockstep and tick < self._last_tick - 1:
                     counters.messages_late += 1  # the tick that needed it is computed already
                     continue
-                box[message.tick] = message.values
+                box[tick] = values
                 if len(box) > INBOX_TICKS:
                     del box[min(box)]
 
@@ -414,6 +416,7 @@ class RobotAgent:
         neighbours = list(config.neighbours)
         weight_of = dict(zip(config.neighbours, config.weights, strict=True))
         counters, dim = self.counters, controller.message_dim
+        act_floats = getattr(controller, "act_floats", None)
         while True:
             pose = self._next_pose(pose_sub)
             if pose is None:
@@ -446,9 +449,12 @@ class RobotAgent:
             for box in self._inbox.values():  # drop what can no longer be used
                 for k in [k for k in box if k < oldest]:
                     del box[k]
-            inbox = np.array(messages).reshape(len(heard), dim)
-            weights = np.array([weight_of[j] for j in heard])
-            u_world, message = controller.act_one(pose.array(), inbox, weights)
+            weights = [weight_of[j] for j in heard]
+            if act_floats is not None:  # plain floats, no numpy: most of an agent's Python time otherwise
+                u_world, message = act_floats(pose.x_m, pose.y_m, pose.theta_rad, messages, weights)
+            else:
+                inbox = np.array(messages, dtype=np.float64).reshape(len(heard), dim)
+                u_world, message = controller.act_one(pose.array(), inbox, np.array(weights))
             wheels = wheels_one(u_world, pose.theta_rad, params)
             msg_pub.put(wire.encode_message(tick, message))
             cmd_pub.put(wire.encode_command(tick, wheels))

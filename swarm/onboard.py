@@ -14,6 +14,7 @@ wheel speeds by :func:`swarm.robot.point_velocity_to_wheels`.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Protocol
 
 import numpy as np
@@ -42,26 +43,39 @@ class OnboardLocalConsensus:
         self.robot = robot
         self.gain = float(gain)
 
-    def act_one(
-        self, pose: np.ndarray, neighbour_messages: np.ndarray, weights: np.ndarray | None = None
-    ) -> tuple[np.ndarray, np.ndarray]:
-        # Plain floats (one robot: numpy per call costs more than the arithmetic), same formulas as
-        # swarm.robot.controlled_point and, in the same (neighbour index) order, as
-        # swarm.kernels.delayed_consensus.
-        x, y, theta = (float(value) for value in pose[:3])
-        px, py = x + self.robot.offset_m * math.cos(theta), y + self.robot.offset_m * math.sin(theta)
-        points = np.asarray(neighbour_messages, dtype=np.float64).reshape(-1, self.message_dim).tolist()
-        w = [1.0] * len(points) if weights is None else np.asarray(weights, dtype=np.float64).tolist()
+    def act_floats(
+        self,
+        x_m: float,
+        y_m: float,
+        theta_rad: float,
+        neighbour_points: Sequence[Sequence[float]],
+        weights: Sequence[float] | None = None,
+    ) -> tuple[tuple[float, float], tuple[float, float]]:
+        """:meth:`act_one` in plain floats (one robot: numpy per call costs more than the arithmetic),
+        what the agent calls every tick: ``(u_world, own point)``."""
+        # Same formulas as swarm.robot.controlled_point and, in the same (neighbour index) order,
+        # as swarm.kernels.delayed_consensus.
+        px = x_m + self.robot.offset_m * math.cos(theta_rad)
+        py = y_m + self.robot.offset_m * math.sin(theta_rad)
+        w = [1.0] * len(neighbour_points) if weights is None else weights
         total, sum_x, sum_y = 0.0, 0.0, 0.0
-        for a, (qx, qy) in zip(w, points, strict=True):
+        for a, (qx, qy) in zip(w, neighbour_points, strict=True):
             total += a
             sum_x += a * qx
             sum_y += a * qy
-        u_world = np.array([-self.gain * (total * px - sum_x), -self.gain * (total * py - sum_y)])
-        return u_world, np.array([px, py])
+        return (-self.gain * (total * px - sum_x), -self.gain * (total * py - sum_y)), (px, py)
+
+    def act_one(
+        self, pose: np.ndarray, neighbour_messages: np.ndarray, weights: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        points = np.asarray(neighbour_messages, dtype=np.float64).reshape(-1, self.message_dim).tolist()
+        w = None if weights is None else np.asarray(weights, dtype=np.float64).tolist()
+        x, y, theta = (float(value) for value in pose[:3])
+        u_world, point = self.act_floats(x, y, theta, points, w)
+        return np.array(u_world), np.array(point)
 
 
-def wheels_one(u_world: np.ndarray, theta_rad: float, robot: RobotParams) -> tuple[float, float]:
+def wheels_one(u_world: Sequence[float], theta_rad: float, robot: RobotParams) -> tuple[float, float]:
     """:func:`swarm.robot.point_velocity_to_wheels` for one robot in plain floats (same arithmetic):
     world velocity of the controlled point -> saturated (left, right) wheel speeds in m/s."""
     ux, uy = float(u_world[0]), float(u_world[1])

@@ -266,14 +266,22 @@ def decode_command(data: bytes) -> Command | None:
     return Command(tick, *values)
 
 
-def encode_message(tick: int, values: np.ndarray) -> bytes:
+SHORT_MESSAGE_DIM = 64
+"""Message vectors up to this length are packed and checked as plain floats (numpy costs more)."""
+
+
+def encode_message(tick: int, values: np.ndarray | Sequence[float]) -> bytes:
     """The message vector travels as little-endian float64 bytes."""
-    vector = np.ascontiguousarray(values, dtype="<f8").reshape(-1)
-    return _pack({"k": int(tick), "m": vector.tobytes()})
+    if isinstance(values, tuple | list) and len(values) <= SHORT_MESSAGE_DIM:
+        raw = struct.pack(f"<{len(values)}d", *values)
+    else:
+        raw = np.ascontiguousarray(values, dtype="<f8").reshape(-1).tobytes()
+    return _pack({"k": int(tick), "m": raw})
 
 
-def decode_message(data: bytes, dim: int | None = None) -> AgentMessage | None:
-    """Also rejects a vector whose length is not ``dim`` when ``dim`` is given."""
+def decode_message_values(data: bytes, dim: int | None = None) -> tuple[int, Sequence[float]] | None:
+    """``(tick, values)`` of a message, values a tuple of floats for short vectors (else an array);
+    None when malformed or, with ``dim``, of another length."""
     body = _unpack(data, MAX_MESSAGE_PAYLOAD)
     if body is None:
         return None
@@ -284,15 +292,23 @@ def decode_message(data: bytes, dim: int | None = None) -> AgentMessage | None:
     size = len(raw) // 8
     if dim is not None and size != dim:
         return None
-    if size <= 64:  # plain floats: cheaper than numpy for the short vectors that usually travel
+    if size <= SHORT_MESSAGE_DIM:
         floats = struct.unpack(f"<{size}d", raw)
         if not all(abs(value) <= MAX_MESSAGE_ABS for value in floats):
             return None  # NaN fails the comparison too
-        return AgentMessage(tick, np.array(floats, dtype=np.float64))
+        return tick, floats
     values = np.frombuffer(raw, dtype="<f8").astype(np.float64)
     if not np.all(np.abs(values) <= MAX_MESSAGE_ABS):
         return None
-    return AgentMessage(tick, values)
+    return tick, values
+
+
+def decode_message(data: bytes, dim: int | None = None) -> AgentMessage | None:
+    """Also rejects a vector whose length is not ``dim`` when ``dim`` is given."""
+    decoded = decode_message_values(data, dim)
+    if decoded is None:
+        return None
+    return AgentMessage(decoded[0], np.asarray(decoded[1], dtype=np.float64))
 
 
 def encode_config(config: AgentConfig) -> bytes:

@@ -194,6 +194,12 @@ def test_malformed_commands_and_messages_are_rejected():
             assert wire.decode_message(packed({**message, "m": values.tobytes()})) is None
 
 
+def test_a_message_packs_the_same_from_floats_or_an_array():
+    values = (1.5, -2.25e-7, 3.0)
+    assert wire.encode_message(4, values) == wire.encode_message(4, np.array(values))
+    assert wire.decode_message_values(wire.encode_message(4, list(values)), dim=3) == (4, values)
+
+
 def test_run_id_discovery_keys():
     assert wire.Keys.any_run_config(3) == "swarm/*/config/3"
     assert wire.Keys.run_of_config(wire.Keys("bench-1_a.b").config(3)) == "bench-1_a.b"

@@ -1,0 +1,404 @@
+"""Benchmark of the distributed runtime (``swarm run`` with ``engine: pybullet``): real processes, real Zenoh.
+
+For every swarm size N and timing mode it writes a scenario (N robots at random in a box that grows
+with N, ``swarm.initial_poses.box_for``; a connected random graph of mean degree about 4; local
+consensus; 20 Hz control), runs it with ``python -m swarm.cli run`` exactly as a user would, and
+reads what the processes report:
+
+- closed-loop latency: pose published by the sim server -> that tick's command received by it
+  (``server_stats.json``), p50 / p99 over every command of the run;
+- ticks served: share of control ticks at which every live agent's command was in before the
+  deadline (lockstep: before the server stepped; realtime: before the tick boundary);
+- per-agent memory: PSS (``psutil.Process.memory_full_info``) of every agent process, sampled
+  once mid-run (in a short lockstep run of its own per N), averaged;
+- start-up: runner start -> every agent's liveliness token seen by the server (``agents_ready_s``)
+  and -> first tick (``first_tick_s``);
+- real-time factor: simulated seconds per wall second of the control loop (realtime mode keeps 20 Hz
+  when it is ~1 and there are no overruns; lockstep runs as fast as the swarm answers);
+- CPU per agent and per server tick (the processes' own CPU clocks, start-up excluded), and how many
+  cores other processes kept busy meanwhile (``/proc/stat`` minus this run's CPU time).
+
+Swarms from ``--large`` (100) robots on run with ``physics_hz`` 120 and again with 60 (10 solver
+iterations): at 240 Hz the physics of 100 robots alone needs about a core. The targets are checked
+on the first rate.
+
+Run: ``python bench/bench_runtime.py`` (writes ``bench/results/runtime.json`` and ``runtime.md``);
+``--counts 6 30 --modes lockstep --duration 5`` for a quick look. The machine's load average is
+recorded with every run: the figures depend on what else runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import platform
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from importlib.metadata import version
+from pathlib import Path
+
+import psutil
+import yaml
+
+from swarm.initial_poses import box_for
+
+ROOT = Path(__file__).resolve().parent.parent
+RESULTS = Path(__file__).resolve().parent / "results"
+
+TARGETS = {
+    "p99_ms_at_6": 3.0,
+    "p99_ms_at_100": 50.0,
+    "served_at_100": 0.99,
+    "pss_mib_per_agent": 25.0,
+    "ready_s_at_100": 5.0,
+    "rtf_at_100": 1.0,
+}
+
+
+def scenario_data(
+    count: int,
+    mode: str,
+    duration_s: float,
+    physics_hz: float | None,
+    solver_iterations: int | None,
+    seed: int,
+) -> dict:
+    """A local-consensus scenario of ``count`` robots on a connected random graph (mean degree ~4)."""
+    low, high = box_for(count)
+    sim: dict = {"engine": "pybullet", "mode": mode, "control_period": 0.05, "duration": duration_s}
+    if physics_hz is not None:
+        sim["physics_hz"] = physics_hz
+    if solver_iterations is not None:
+        sim["solver_iterations"] = solver_iterations
+    return {
+        "name": f"bench-runtime-{count}-{mode}",
+        "robots": {
+            "count": count,
+            "init": {"random": {"seed": seed, "x": [low, high], "y": [low, high], "min_separation": 0.4}},
+        },
+        "topology": {
+            "kind": "random",
+            "p": min(0.6, 4.0 / max(count - 1, 1)),
+            "seed": seed,
+            "connected": True,
+        },
+        "robot": {"v_max": 0.5},
+        "controller": {"kind": "local_consensus", "gain": 1.0},
+        "sim": sim,
+        "success": {"metric": "max_pairwise", "threshold": {"kinematic": 0.2, "pybullet": 1.3}},
+    }
+
+
+def _agent_processes(cli: psutil.Process) -> list[psutil.Process]:
+    """The agent processes: children of the launcher (``python -m robot_agent --robots ...``)."""
+    agents = []
+    with contextlib.suppress(psutil.NoSuchProcess):
+        for child in cli.children(recursive=True):
+            with contextlib.suppress(psutil.NoSuchProcess, psutil.AccessDenied):
+                if "--robots" in child.cmdline():
+                    agents += child.children()
+    return agents
+
+
+def _memory_mib(processes: list[psutil.Process]) -> dict:
+    pss, uss, rss = [], [], []
+    for process in processes:
+        with contextlib.suppress(psutil.NoSuchProcess, psutil.AccessDenied):
+            info = process.memory_full_info()
+            pss.append(info.pss / 2**20)
+            uss.append(info.uss / 2**20)
+            rss.append(info.rss / 2**20)
+    mean = lambda values: round(sum(values) / len(values), 2) if values else None  # noqa: E731
+    return {"agents_sampled": len(pss), "pss_mean": mean(pss), "uss_mean": mean(uss), "rss_mean": mean(rss)}
+
+
+def _process_mib(cli: psutil.Process, marker: str) -> float | None:
+    with contextlib.suppress(psutil.NoSuchProcess):
+        for child in cli.children(recursive=True):
+            with contextlib.suppress(psutil.NoSuchProcess, psutil.AccessDenied):
+                if marker in " ".join(child.cmdline()):
+                    return round(child.memory_full_info().pss / 2**20, 2)
+    return None
+
+
+def _cpu_busy_cores() -> tuple[float, float]:
+    """(busy, total) jiffies of the whole machine, from /proc/stat."""
+    fields = [float(v) for v in Path("/proc/stat").read_text().split("\n", 1)[0].split()[1:]]
+    idle = fields[3] + fields[4]
+    return sum(fields) - idle, sum(fields)
+
+
+def _children_cpu_s() -> float:
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def run_once(scenario_path: Path, out_dir: Path, steps: int, timeout_s: float, memory_at: int | None) -> dict:
+    """``memory_at``: sample the processes' memory once this many ticks are done (None: never; reading
+    ``/proc/<pid>/smaps_rollup`` of every agent stalls them briefly, which shows in the latency tail)."""
+    """``swarm run`` one scenario; returns its measurements (or an ``error``)."""
+    load_before = os.getloadavg()[0]
+    machine_before, children_before = _cpu_busy_cores(), _children_cpu_s()
+    started_s = time.perf_counter()
+    process = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "run", str(scenario_path), "--out", str(out_dir), "--quiet"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
+    )
+    cli = psutil.Process(process.pid)
+    trajectory = out_dir / "trajectory.jsonl"
+    memory, server_pss, launcher_pss, cli_first_tick_s = {}, None, None, None
+    try:
+        while process.poll() is None:
+            if time.perf_counter() - started_s > timeout_s:
+                raise TimeoutError
+            ticks = trajectory.read_bytes().count(b"\n") if trajectory.exists() else 0
+            if ticks and cli_first_tick_s is None:
+                cli_first_tick_s = time.perf_counter() - started_s
+            if not memory and memory_at is not None and ticks >= memory_at:
+                memory = _memory_mib(_agent_processes(cli))
+                server_pss = _process_mib(cli, "-m sim_server")
+                launcher_pss = _process_mib(cli, "--robots")
+            time.sleep(0.02)
+        _, stderr = process.communicate()
+        wall_s = time.perf_counter() - started_s
+    except TimeoutError:
+        process.terminate()
+        process.communicate(timeout=30)
+        return {"error": f"timed out after {timeout_s:g} s"}
+    if process.returncode not in (0, 1):
+        return {"error": f"swarm run exited {process.returncode}: {stderr.strip()[-400:]}"}
+    busy, total = (after - before for after, before in zip(_cpu_busy_cores(), machine_before, strict=True))
+    cores = os.cpu_count() or 1
+    machine_cores = cores * busy / total if total else 0.0
+    run_cores = (_children_cpu_s() - children_before) / wall_s
+    metrics = json.loads((out_dir / "metrics.json").read_text())
+    records = [json.loads(p.read_text()) for p in (out_dir / "logs").glob("agent_*.json")]
+    agent_cpu = [
+        (r["cpu_s"] - r.get("cpu_ready_s", 0.0)) / r["ticks"]
+        for r in records
+        if r.get("cpu_s") is not None and r.get("ticks")
+    ]
+    stats = json.loads((out_dir / "server_stats.json").read_text())
+    runtime = metrics["runtime"]
+    latency = stats.get("latency_ms", {})
+    ticks = stats.get("ticks") or steps
+    return {
+        "latency_p50_ms": latency.get("p50"),
+        "latency_p99_ms": latency.get("p99"),
+        "latency_max_ms": latency.get("max"),
+        "ticks": ticks,
+        "ticks_served": stats.get("ticks_served"),
+        "served_share": round(stats.get("ticks_served", 0) / ticks, 4),
+        "realtime_factor": stats.get("realtime_factor"),
+        "overruns": stats.get("overruns"),
+        "physics_ms_per_tick": stats.get("physics_ms_per_tick"),
+        "physics_cpu_ms_per_tick": stats.get("physics_cpu_ms_per_tick"),
+        "first_tick_s": runtime.get("startup_s"),
+        "agents_ready_s": runtime.get("agents_ready_s"),
+        "cli_to_first_tick_s": None if cli_first_tick_s is None else round(cli_first_tick_s, 3),
+        "agent_pss_mib": memory.get("pss_mean"),
+        "agent_uss_mib": memory.get("uss_mean"),
+        "agent_rss_mib": memory.get("rss_mean"),
+        "agents_sampled": memory.get("agents_sampled"),
+        "server_pss_mib": server_pss,
+        "launcher_pss_mib": launcher_pss,
+        "messages_lost": runtime.get("messages_lost"),
+        "agent_cpu_ms_per_tick": round(1e3 * sum(agent_cpu) / len(agent_cpu), 4) if agent_cpu else None,
+        "server_cpu_ms_per_tick": (
+            round(1e3 * (stats["cpu_s"] - stats.get("cpu_ready_s", 0.0)) / ticks, 3)
+            if stats.get("cpu_s") is not None
+            else None
+        ),
+        "wall_s": runtime.get("wall_s"),
+        "run_cores": round(run_cores, 2),
+        "other_cores": round(max(0.0, machine_cores - run_cores), 2),
+        "load_avg_1min_before": round(load_before, 2),
+        "load_avg_1min_after": round(os.getloadavg()[0], 2),
+    }
+
+
+def _fmt(value: object, digits: int = 2) -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, float):
+        return f"{value:.{digits}f}"
+    return str(value)
+
+
+def targets_met(results: list[dict]) -> dict[str, bool | None]:
+    """Each target of issue 4 against the measured rows (None: not measured)."""
+
+    def row(count: int, mode: str) -> dict | None:
+        return next(
+            (r for r in results if r["robots"] == count and r["mode"] == mode and "error" not in r), None
+        )
+
+    def worst(rows: list[dict | None], key: str, fn) -> float | None:
+        values = [r[key] for r in rows if r is not None and r.get(key) is not None]
+        return fn(values) if values else None
+
+    at6 = [row(6, m) for m in ("lockstep", "realtime")]
+    at100 = [row(100, m) for m in ("lockstep", "realtime")]
+    everyone = [r for r in results if "error" not in r]
+    checks = {
+        "p99_ms_at_6": (worst(at6, "latency_p99_ms", max), lambda v: v <= TARGETS["p99_ms_at_6"]),
+        "p99_ms_at_100": (worst(at100, "latency_p99_ms", max), lambda v: v <= TARGETS["p99_ms_at_100"]),
+        "served_at_100": (worst(at100, "served_share", min), lambda v: v >= TARGETS["served_at_100"]),
+        "pss_mib_per_agent": (
+            worst(everyone, "agent_pss_mib", max),
+            lambda v: v <= TARGETS["pss_mib_per_agent"],
+        ),
+        "ready_s_at_100": (worst(at100, "agents_ready_s", max), lambda v: v <= TARGETS["ready_s_at_100"]),
+        "rtf_at_100": (worst(at100, "realtime_factor", min), lambda v: v >= TARGETS["rtf_at_100"] - 0.01),
+    }
+    return {
+        name: {
+            "target": TARGETS[name],
+            "measured": value,
+            "met": None if value is None else bool(test(value)),
+        }
+        for name, (value, test) in checks.items()
+    }
+
+
+def markdown(report: dict) -> str:
+    settings = report["settings"]
+    lines = [
+        f"`python bench/bench_runtime.py`: {settings['duration_s']:g} s of sim per run, 20 Hz control, local"
+        f" consensus on a random graph of mean degree ~4, {report['machine']['cpu_count']} cores. 1-min load"
+        f" average {report['load_avg_before']} before the first run; 'other' = cores kept busy by processes"
+        " outside the run while it ran. Targets are checked on the first physics rate of N >= 100.",
+        "",
+        "| N | mode | physics Hz | p50 ms | p99 ms | ticks served | RTF | agents ready s | first tick s"
+        " | PSS/agent MiB | agent CPU ms/tick | server CPU ms/tick | other cores |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in report["results"]:
+        if "error" in r:
+            lines.append(
+                f"| {r['robots']} | {r['mode']} | {_fmt(r['physics_hz'], 0)} | error: {r['error']} |"
+            )
+            continue
+        lines.append(
+            f"| {r['robots']} | {r['mode']} | {_fmt(r['physics_hz'], 0)} | {_fmt(r['latency_p50_ms'])}"
+            f" | {_fmt(r['latency_p99_ms'])} | {100 * r['served_share']:.1f}% | {_fmt(r['realtime_factor'])}"
+            f" | {_fmt(r['agents_ready_s'])} | {_fmt(r['first_tick_s'])} | {_fmt(r['agent_pss_mib'], 1)}"
+            f" | {_fmt(r['agent_cpu_ms_per_tick'])} | {_fmt(r['server_cpu_ms_per_tick'], 1)}"
+            f" | {_fmt(r['other_cores'])} |"
+        )
+    lines += ["", "| target | measured | met |", "|---|---|---|"]
+    for name, check in report["targets"].items():
+        met = {True: "yes", False: "**no**", None: "-"}[check["met"]]
+        lines.append(f"| {name} {check['target']:g} | {_fmt(check['measured'])} | {met} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--counts", type=int, nargs="+", default=[6, 30, 100])
+    parser.add_argument(
+        "--modes", nargs="+", default=["lockstep", "realtime"], choices=["lockstep", "realtime"]
+    )
+    parser.add_argument("--duration", type=float, default=10.0, help="simulated seconds per run")
+    parser.add_argument(
+        "--physics-hz", type=float, help="sim.physics_hz below --large (default: the scenario's)"
+    )
+    parser.add_argument("--large", type=int, default=100, help="from this N on, use --large-physics-hz")
+    parser.add_argument(
+        "--large-physics-hz",
+        type=float,
+        nargs="+",
+        default=[120.0, 60.0],
+        help="sim.physics_hz of large swarms, one run each (default: 120 60; the targets use the first)",
+    )
+    parser.add_argument("--solver-iterations", type=int, help="scenario sim.solver_iterations")
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--timeout", type=float, default=300.0, help="seconds per run")
+    parser.add_argument("--out", type=Path, default=RESULTS / "runtime.json")
+    parser.add_argument(
+        "--keep", type=Path, help="keep every run's results directory here (default: failed runs only)"
+    )
+    args = parser.parse_args(argv)
+
+    results, load_before = [], os.getloadavg()[0]
+    keep = args.keep or Path(tempfile.gettempdir()) / "bench-runtime-failed"
+    memory_keys = ("agent_pss_mib", "agent_uss_mib", "agent_rss_mib", "agents_sampled")
+    memory_keys += ("server_pss_mib", "launcher_pss_mib")
+    with tempfile.TemporaryDirectory(prefix="bench-runtime-") as work:
+
+        def run(count: int, mode: str, physics_hz: float | None, duration_s: float, memory: bool) -> dict:
+            data = scenario_data(count, mode, duration_s, physics_hz, args.solver_iterations, args.seed)
+            data["name"] += (f"-{physics_hz:g}hz" if physics_hz is not None else "") + (
+                "-memory" if memory else ""
+            )
+            path = Path(work) / f"{data['name']}.yaml"
+            path.write_text(yaml.safe_dump(data))
+            steps = round(duration_s / 0.05)
+            result = run_once(
+                path, Path(work) / data["name"], steps, args.timeout, steps // 3 if memory else None
+            )
+            if args.keep or "error" in result:
+                kept = keep / f"{data['name']}-{time.strftime('%H%M%S')}"
+                shutil.copytree(Path(work) / data["name"], kept, dirs_exist_ok=True)
+                result["results_dir"] = str(kept)
+            resolved = yaml.safe_load((Path(work) / data["name"] / "scenario.yaml").read_text())
+            return {
+                "robots": count,
+                "mode": mode,
+                "physics_hz": resolved["sim"]["physics_hz"],
+                "solver_iterations": resolved["sim"]["solver_iterations"],
+                **result,
+            }
+
+        for count in args.counts:
+            # Memory in a run of its own: reading every agent's smaps stalls them, which would show
+            # in the latency tail of the timed runs.
+            large = count >= args.large
+            memory = run(count, "lockstep", args.large_physics_hz[0] if large else args.physics_hz, 3.0, True)
+            for physics_hz in args.large_physics_hz if large else [args.physics_hz]:
+                for mode in args.modes:
+                    result = run(count, mode, physics_hz, args.duration, False)
+                    result.update({key: memory.get(key) for key in memory_keys})
+                    results.append(result)
+                    print(json.dumps(result), flush=True)
+    report = {
+        "benchmark": "runtime",
+        "settings": {
+            "duration_s": args.duration,
+            "control_period_s": 0.05,
+            "topology": "random, p = min(0.6, 4 / (N - 1)), connected",
+            "controller": "local_consensus",
+            "seed": args.seed,
+        },
+        "machine": {
+            "python": platform.python_version(),
+            "platform": platform.platform(),
+            "cpu_count": os.cpu_count(),
+            "zenoh": version("eclipse-zenoh"),
+            "pybullet": version("pybullet"),
+        },
+        "load_avg_before": round(load_before, 2),
+        "results": results,
+    }
+    first_large_hz = args.large_physics_hz[0]
+    report["targets"] = targets_met(
+        [r for r in results if r["robots"] < args.large or r["physics_hz"] == first_large_hz]
+    )
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(report, indent=2) + "\n")
+    args.out.with_suffix(".md").write_text(markdown(report))
+    print(markdown(report))
+    return 0 if all(c["met"] is not False for c in report["targets"].values()) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

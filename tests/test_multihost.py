@@ -1,0 +1,221 @@
+"""Several hosts, emulated: two Linux network namespaces joined by a veth pair.
+
+The sim server runs in one namespace ("the sim host") listening on ``tcp/0.0.0.0:7447``; robot agents
+are started by hand as a user on another host would, with only the endpoint and a robot id (no run
+id: they discover it), four in the other namespace ("the robot host", over the veth link) and two in
+the sim's own namespace (over its loopback). The run must complete and the robots gather.
+
+Addresses are from TEST-NET-1 (192.0.2.0/24, RFC 5737) and exist only inside the two namespaces this
+test creates and deletes. Needs root (CAP_NET_ADMIN) and ``ip`` (iproute2); skips otherwise.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import uuid
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from swarm import wire
+from swarm.results import read_trajectory, summarize
+from swarm.scenario import load_scenario
+
+PROJECT_ROOT = Path(__file__).resolve().parent.parent
+SIM_ADDRESS, ROBOT_ADDRESS = "192.0.2.1", "192.0.2.2"
+PORT = 7447
+TIMEOUT_S = 60.0
+
+
+def _why_no_namespaces() -> str | None:
+    if not sys.platform.startswith("linux"):
+        return "network namespaces need Linux"
+    if os.geteuid() != 0:
+        return "creating network namespaces needs root (CAP_NET_ADMIN)"
+    if shutil.which("ip") is None:
+        return "creating network namespaces needs the `ip` command (iproute2)"
+    return None
+
+
+def _ip(*args: str) -> None:
+    subprocess.run(["ip", *args], check=True, capture_output=True, text=True, timeout=10)
+
+
+@pytest.fixture
+def two_hosts():
+    """(sim namespace, robot namespace, robot-side veth name), deleted afterwards."""
+    reason = _why_no_namespaces()
+    if reason:
+        pytest.skip(reason)
+    tag = uuid.uuid4().hex[:6]
+    sim_ns, robot_ns = f"swarm-sim-{tag}", f"swarm-robots-{tag}"
+    sim_if, robot_if = f"sws{tag}", f"swr{tag}"  # interface names: at most 15 characters
+    setup = [
+        ("netns", "add", sim_ns),
+        ("netns", "add", robot_ns),
+        ("link", "add", sim_if, "type", "veth", "peer", "name", robot_if),
+        ("link", "set", sim_if, "netns", sim_ns),
+        ("link", "set", robot_if, "netns", robot_ns),
+        ("-n", sim_ns, "addr", "add", f"{SIM_ADDRESS}/24", "dev", sim_if),
+        ("-n", robot_ns, "addr", "add", f"{ROBOT_ADDRESS}/24", "dev", robot_if),
+        ("-n", sim_ns, "link", "set", sim_if, "up"),
+        ("-n", robot_ns, "link", "set", robot_if, "up"),
+        ("-n", sim_ns, "link", "set", "lo", "up"),
+        ("-n", robot_ns, "link", "set", "lo", "up"),
+    ]
+
+    def cleanup() -> None:
+        for namespace in (sim_ns, robot_ns):  # deleting a namespace deletes its end of the veth pair
+            subprocess.run(["ip", "netns", "del", namespace], capture_output=True, timeout=10)
+        subprocess.run(["ip", "link", "del", sim_if], capture_output=True, timeout=10)
+
+    try:
+        for command in setup:
+            _ip(*command)
+    except (subprocess.CalledProcessError, OSError, subprocess.TimeoutExpired) as error:
+        cleanup()
+        detail = getattr(error, "stderr", None) or error
+        pytest.skip(f"cannot create network namespaces here: {str(detail).strip()}")
+    try:
+        yield sim_ns, robot_ns, robot_if
+    finally:
+        cleanup()
+
+
+class Processes:
+    """Commands started inside a namespace, each in its own process group; all stopped at the end."""
+
+    def __init__(self, log_dir: Path):
+        self.log_dir = log_dir
+        self.started: dict[str, subprocess.Popen] = {}
+
+    def start(self, name: str, namespace: str, *command: str) -> subprocess.Popen:
+        with open(self.log_dir / f"{name}.out", "wb") as log:
+            process = subprocess.Popen(
+                ["ip", "netns", "exec", namespace, sys.executable, *command],
+                stdin=subprocess.DEVNULL,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                cwd=PROJECT_ROOT,
+                start_new_session=True,
+            )
+        self.started[name] = process
+        return process
+
+    def stop(self) -> None:
+        for process in self.started.values():
+            if process.poll() is None:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(process.pid, signal.SIGKILL)
+                process.wait(timeout=10)
+
+    def log(self, name: str) -> str:
+        return (self.log_dir / f"{name}.out").read_text(errors="replace")[-2000:]
+
+
+def test_agents_started_by_hand_on_another_host_join_the_run(two_hosts, tmp_path):
+    sim_ns, robot_ns, robot_if = two_hosts
+    data = yaml.safe_load((PROJECT_ROOT / "scenarios" / "thesis" / "cycle-local_consensus.yaml").read_text())
+    data["sim"]["duration"] = 6.0
+    scenario_path = tmp_path / "scenario.yaml"
+    scenario_path.write_text(yaml.safe_dump(data))
+    scenario = load_scenario(scenario_path)
+    out, logs = tmp_path / "results", tmp_path / "results" / "logs"
+    logs.mkdir(parents=True)
+    run_id = f"multihost-{uuid.uuid4().hex[:6]}"
+    processes = Processes(tmp_path)
+    try:
+        server = processes.start(
+            "sim_server",
+            sim_ns,
+            "-m",
+            "sim_server",
+            "--scenario",
+            str(scenario_path),
+            "--out",
+            str(out),
+            "--run",
+            run_id,
+            "--listen",
+            f"tcp/0.0.0.0:{PORT}",
+        )
+        remote = f"tcp/{SIM_ADDRESS}:{PORT}"
+        agents = [
+            processes.start(
+                f"agent_{i}",
+                robot_ns,
+                "-m",
+                "robot_agent",
+                "--robot",
+                str(i),
+                "--connect",
+                remote,
+                "--log-dir",
+                str(logs),
+            )
+            for i in range(4)
+        ]
+        local = f"tcp/127.0.0.1:{PORT}"
+        agents.append(
+            processes.start(
+                "agents_4_5",
+                sim_ns,
+                "-m",
+                "robot_agent",
+                "--robots",
+                "4-5",
+                "--connect",
+                local,
+                "--log-dir",
+                str(logs),
+            )
+        )
+        try:
+            server_code = server.wait(timeout=TIMEOUT_S)
+            agent_codes = [agent.wait(timeout=15) for agent in agents]
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"the run did not end: {processes.log('sim_server')}")
+        link_bytes = int(
+            subprocess.run(
+                ["ip", "netns", "exec", robot_ns, "cat", f"/sys/class/net/{robot_if}/statistics/tx_bytes"],
+                capture_output=True,
+                text=True,
+                check=True,
+                timeout=10,
+            ).stdout
+        )
+    finally:
+        processes.stop()
+
+    assert server_code == 0, processes.log("sim_server")
+    assert agent_codes == [0] * 5, [processes.log(name) for name in processes.started]
+    stats = json.loads((out / "server_stats.json").read_text())
+    assert stats["exit"] == "done" and stats["ticks_served"] == scenario.steps
+    assert sorted(event["robot"] for event in stats["agent_events"] if event["event"] == "alive") == list(
+        range(6)
+    )
+
+    times_s, poses, _ = read_trajectory(out / "trajectory.jsonl")
+    assert len(times_s) == scenario.steps + 1
+    outcome = summarize(scenario, times_s, poses, scenario.adjacency())
+    assert outcome["converged"], outcome["final_metric"]
+    assert np.ptp(poses[-1, :, :2], axis=0).max() < np.ptp(poses[0, :, :2], axis=0).max()
+
+    keys = wire.Keys(run_id)
+    records = {i: json.loads((logs / f"agent_{i}.json").read_text()) for i in range(6)}
+    for i, record in records.items():
+        endpoint = f"tcp/{SIM_ADDRESS}:{PORT}" if i < 4 else f"tcp/127.0.0.1:{PORT}"
+        assert record["connect"] == [endpoint]
+        assert record["run"] == run_id  # discovered: no --run was given
+        assert record["queries"] == [wire.Keys.any_run_config(i), keys.config(i)]
+        assert record["ticks"] == scenario.steps and record["exit_reason"] == "sim gone"
+    # The four remote agents' traffic crossed the veth link: poses, commands, neighbour messages.
+    assert link_bytes > 4 * scenario.steps * 100
