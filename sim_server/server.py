@@ -11,9 +11,11 @@ deadline is dropped (counted); the robot keeps its last command until ``sim.watc
 time without a fresh one, then stops. An agent whose liveliness token disappears (crash, SIGKILL,
 lease expiry of a frozen process) is not waited for and its robot stops at the next tick.
 
-``realtime``: physics runs on the wall clock, one control period per period of wall time; the
-latest command of each robot applies at the next tick boundary; a robot without a fresh command
-for ``sim.watchdog_s`` of wall time, or whose agent died, stops.
+``realtime``: physics runs on the wall clock, one control period per period of wall time: the poses
+of tick k go out at its wall-clock boundary ``k * period``; the latest command of each robot applies
+from tick k to k+1 (the server steps as soon as every live agent's command of tick k is in, else at
+boundary k+1 with what it has); a robot without a fresh command for ``sim.watchdog_s`` of wall
+time, or whose agent died, stops.
 
 The server also answers ``swarm/<run>/config/<i>`` queries with robot i's configuration
 (``swarm.wire.AgentConfig``: scenario, robot parameters, graph neighbours, controller, policy
@@ -117,6 +119,7 @@ class SimServer:
         self._tick = -1
         self._alive: set[int] = set()
         self._cmds: dict[int, tuple[wire.Command, float]] = {}  # lockstep: this tick's; realtime: latest
+        self._fresh: set[int] = set()  # robots whose command of the current tick is in
         self._published_at_s: dict[int, float] = {}
         self.stats = {
             "invalid_commands": 0,
@@ -145,9 +148,14 @@ class SimServer:
             previous = self._cmds.get(robot)
             if previous is None or previous[0].tick <= cmd.tick:
                 self._cmds[robot] = (cmd, now_s)
-            # Wake the main thread once per tick, not once per command (realtime: never, it keeps time).
-            if lockstep and len(self._cmds) >= len(self._alive) and self._alive.issubset(self._cmds):
-                self._cond.notify_all()
+            if cmd.tick == self._tick:
+                self._fresh.add(robot)
+                if self._all_fresh():  # wake the main thread once per tick, not once per command
+                    self._cond.notify_all()
+
+    def _all_fresh(self) -> bool:
+        """Every live agent's command of the current tick is in (lock held)."""
+        return len(self._fresh) >= len(self._alive) and self._alive.issubset(self._fresh)
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         robot = self.keys.robot_of(str(sample.key_expr), "alive")
@@ -249,6 +257,7 @@ class SimServer:
         time_s = tick * self.dt_s
         with self._cond:
             self._tick = tick
+            self._fresh.clear()
             if self.scenario.sim.mode == "lockstep":
                 self._cmds.clear()
             self._published_at_s[tick] = time.perf_counter()
@@ -322,19 +331,25 @@ class SimServer:
         start_s = time.perf_counter()
         with TrajectoryWriter(self.options.out_dir / "trajectory.jsonl") as trajectory:
             for tick in range(steps + 1):
+                tick_s = start_s + tick * self.dt_s  # the wall-clock boundary of this tick
+                with self._cond:
+                    self._wait(lambda: False, tick_s)  # its poses go out at its boundary, not before
+                if self._stop:
+                    return EXIT_INTERRUPTED
+                overruns += time.perf_counter() > tick_s + 0.5 * self.dt_s
                 poses = world.poses()
                 if tick == steps:
                     trajectory.write(tick, tick * self.dt_s, poses)
                     break
                 self._publish(publishers, tick, poses)
-                boundary_s = start_s + (tick + 1) * self.dt_s
                 with self._cond:
-                    self._wait(lambda: False, boundary_s)
+                    # Step as soon as every live agent's command of this tick is in (the same commands
+                    # as at the boundary, computed early), else at the next boundary with the latest.
+                    self._wait(self._all_fresh, tick_s + self.dt_s)
                     cmds, alive = dict(self._cmds), set(self._alive)
                 if self._stop:
                     return EXIT_INTERRUPTED
                 now_s = time.perf_counter()
-                overruns += now_s > boundary_s + 0.5 * self.dt_s
                 fresh = 0
                 for i in range(self.count):
                     if i in cmds and cmds[i][0].tick > applied_tick[i]:
