@@ -264,6 +264,16 @@ class SimServer:
         for publisher, pose in zip(publishers, poses.tolist(), strict=True):
             publisher.put(wire.encode_pose(tick, time_s, pose))
 
+    def _apply_and_step(self, world, trajectory, tick: int, poses, wheels) -> tuple[float, float]:
+        """Saturate and apply the wheels of tick k, log the tick, advance physics one control
+        period; returns the physics step's wall and CPU seconds."""
+        wheels = saturate_wheels(wheels, self.scenario.robot.v_max_mps)
+        trajectory.write(tick, tick * self.dt_s, poses, wheels=wheels.tolist())
+        world.set_wheel_speeds(wheels)
+        start_s, start_cpu_s = time.perf_counter(), time.thread_time()
+        world.step(self.dt_s)
+        return time.perf_counter() - start_s, time.thread_time() - start_cpu_s
+
     def _lockstep(self, world: PhysicsWorld, publishers: list) -> int:
         sim = self.scenario.sim
         steps = self.scenario.steps
@@ -300,13 +310,9 @@ class SimServer:
                     if i in alive and i not in cmds:
                         missed_by_robot[i] += 1
                 del self._published_at_s[tick]
-                wheels = saturate_wheels(wheels, self.scenario.robot.v_max_mps)
-                trajectory.write(tick, tick * self.dt_s, poses, wheels=wheels.tolist())
-                world.set_wheel_speeds(wheels)
-                physics_start_s, physics_start_cpu_s = time.perf_counter(), time.thread_time()
-                world.step(self.dt_s)
-                physics_s += time.perf_counter() - physics_start_s
-                physics_cpu_s += time.thread_time() - physics_start_cpu_s
+                step_wall_s, step_cpu_s = self._apply_and_step(world, trajectory, tick, poses, wheels)
+                physics_s += step_wall_s
+                physics_cpu_s += step_cpu_s
         self.stats.update(
             ticks=steps,
             ticks_served=served,
@@ -365,13 +371,9 @@ class SimServer:
                         wheels[i] = 0.0
                 served += fresh >= len(alive)
                 self._published_at_s.pop(tick - 20, None)
-                wheels = saturate_wheels(wheels, self.scenario.robot.v_max_mps)
-                trajectory.write(tick, tick * self.dt_s, poses, wheels=wheels.tolist())
-                world.set_wheel_speeds(wheels)
-                physics_start_s, physics_start_cpu_s = time.perf_counter(), time.thread_time()
-                world.step(self.dt_s)
-                physics_s += time.perf_counter() - physics_start_s
-                physics_cpu_s += time.thread_time() - physics_start_cpu_s
+                step_wall_s, step_cpu_s = self._apply_and_step(world, trajectory, tick, poses, wheels)
+                physics_s += step_wall_s
+                physics_cpu_s += step_cpu_s
         wall_s = time.perf_counter() - start_s
         self.stats.update(
             ticks=steps,
