@@ -136,6 +136,14 @@ def _dense_to_lists(adjacency: np.ndarray, neighbour_index: np.ndarray, neighbou
             neighbour_weight[env, i, rest] = 0.0
 
 
+@numba.njit(cache=True, inline="always")
+def _linked(positions: np.ndarray, env: int, i: int, j: int, radius_sq: float) -> bool:
+    """Robots i != j of environment env are within the disk radius of each other."""
+    dx = positions[env, i, 0] - positions[env, j, 0]
+    dy = positions[env, i, 1] - positions[env, j, 1]
+    return j != i and dx * dx + dy * dy <= radius_sq
+
+
 def _disk_degrees(positions: np.ndarray, radius_m: float, degrees: np.ndarray) -> None:
     """Neighbours within ``radius_m`` of each robot (the disk graph of ``swarm.graphs.disk``)."""
     batch, count = positions.shape[0], positions.shape[1]
@@ -145,9 +153,7 @@ def _disk_degrees(positions: np.ndarray, radius_m: float, degrees: np.ndarray) -
         i = row % count
         degree = 0
         for j in range(count):
-            dx = positions[env, i, 0] - positions[env, j, 0]
-            dy = positions[env, i, 1] - positions[env, j, 1]
-            if j != i and dx * dx + dy * dy <= radius_sq:
+            if _linked(positions, env, i, j, radius_sq):
                 degree += 1
         degrees[env, i] = degree
 
@@ -163,9 +169,7 @@ def _disk_lists(
         i = row % count
         k = 0
         for j in range(count):
-            dx = positions[env, i, 0] - positions[env, j, 0]
-            dy = positions[env, i, 1] - positions[env, j, 1]
-            if j != i and dx * dx + dy * dy <= radius_sq:
+            if _linked(positions, env, i, j, radius_sq):
                 neighbour_index[env, i, k] = j
                 neighbour_weight[env, i, k] = 1.0
                 k += 1
