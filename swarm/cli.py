@@ -110,6 +110,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         "gain": args.gain,
         "v_max_mps": args.v_max,
         "model": args.model,
+        "workers": args.workers,
     }
     config = config.with_overrides({key: value for key, value in overrides.items() if value is not None})
     out_dir = Path(args.out)
@@ -149,8 +150,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         reuse=args.reuse or [],
         curve_sizes=args.curve_sizes or defaults.curve_sizes,
         curve_starts=args.curve_starts or defaults.curve_starts,
+        workers=args.workers,
     )
-    SweepConfig(topologies=config.topologies, sizes=config.sizes, seeds=config.seeds).check("command line")
+    SweepConfig(
+        topologies=config.topologies, sizes=config.sizes, seeds=config.seeds, workers=config.workers
+    ).check("command line")
     rows = evaluate(config, progress=not args.quiet)
     failed = [row for row in rows if row["controller"] == "gnn" and row["success_rate"] < 1.0]
     print(f"evaluate: {len(rows)} cells, table in {Path(args.out) / 'evaluation.md'}, plots in {args.out}")
@@ -252,6 +256,7 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--gain", type=float, help="consensus gain K (1/s)")
     sweep.add_argument("--v-max", type=float, help="wheel-speed limit (m/s)")
     sweep.add_argument("--out", default="runs/sweep", help="output directory (default: runs/sweep)")
+    sweep.add_argument("--workers", type=int, help="processes each cell's starts are split over (default 1)")
     sweep.add_argument("--quiet", action="store_true", help="no progress bar")
     sweep.set_defaults(handler=cmd_sweep)
 
@@ -279,6 +284,9 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--curve-sizes", nargs="+", type=int, help="N of the max_pairwise-over-time plots")
     evaluate.add_argument("--curve-starts", type=int, help="starts per max_pairwise curve (default 100)")
     evaluate.add_argument("--out", default="runs/evaluate", help="output directory (default: runs/evaluate)")
+    evaluate.add_argument(
+        "--workers", type=int, default=1, help="processes each cell's starts are split over (default 1)"
+    )
     evaluate.add_argument("--quiet", action="store_true", help="no progress bar")
     evaluate.set_defaults(handler=cmd_evaluate)
 

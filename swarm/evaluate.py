@@ -51,6 +51,7 @@ class EvaluateConfig:
     curve_sizes: list[int] = field(default_factory=lambda: [6, 24])
     curve_starts: int = 100
     curve_horizon_s: float = 600.0  # longest simulated time of a max_pairwise curve
+    workers: int = 1  # processes a cell's starts are split over
 
 
 def sweep_config(config: EvaluateConfig, count: int) -> SweepConfig:
@@ -63,6 +64,7 @@ def sweep_config(config: EvaluateConfig, count: int) -> SweepConfig:
         max_duration_s=config.max_duration_s,
         model=config.model,
         first_starts=limit if limit is not None and limit < config.seeds else None,
+        workers=config.workers,
     )
 
 

@@ -48,6 +48,7 @@ class SweepConfig:
     seed: int = 0
     model: str | None = None  # policy file of controller "gnn"
     first_starts: int | None = None  # run only the first ones of the `seeds` starts (None: all)
+    workers: int = 1  # processes a cell's starts are split over (results do not depend on it)
 
     @classmethod
     def from_mapping(cls, data: dict, source: str = "<config>") -> SweepConfig:
@@ -76,6 +77,8 @@ class SweepConfig:
                 raise ScenarioError(f"{source}: model: no such policy file {self.model}")
         if self.first_starts is not None and not 0 < self.first_starts <= self.seeds:
             raise ScenarioError(f"{source}: first_starts: must be in 1..seeds")
+        if self.workers < 1:
+            raise ScenarioError(f"{source}: workers: must be at least 1")
         if any(size < 2 for size in self.sizes):
             raise ScenarioError(f"{source}: sizes: every N must be at least 2")
         for name in ("seeds", "gain", "v_max_mps", "control_period_s", "threshold_m", "max_duration_s"):
@@ -216,12 +219,18 @@ def cell_starts(
     return poses, adjacency, disk_radius
 
 
-def run_cell(config: SweepConfig, topology: str, count: int, controller: str, on_progress=None) -> dict:
-    """One (topology, N, controller) cell over ``config.seeds`` random starts."""
-    poses, adjacency, disk_radius = cell_starts(config, topology, count)
+def _converge_starts(
+    config: SweepConfig,
+    count: int,
+    controller: str,
+    poses: np.ndarray,
+    adjacency: np.ndarray | None,
+    disk_radius: float | None,
+    on_progress=None,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Convergence times of some starts of a cell (and, on disk graphs, which ones disconnected)."""
     robot = RobotParams(v_max_mps=config.v_max_mps)
-    starts = len(poses)
-    disconnected = np.zeros(starts, dtype=bool) if adjacency is None else None
+    disconnected = np.zeros(len(poses), dtype=bool) if adjacency is None else None
     sim = KinematicSim(
         robot,
         make_controller(controller, robot, config.gain, config.model, count),
@@ -233,6 +242,56 @@ def run_cell(config: SweepConfig, topology: str, count: int, controller: str, on
     times = converge_batch(
         sim, config.threshold_m, config.max_duration_s, config.hold_s, on_progress, disconnected
     )
+    return times, disconnected
+
+
+def _one_thread() -> None:
+    """Worker initializer: one numba thread per process, the processes share the cores."""
+    import numba
+
+    numba.set_num_threads(1)
+
+
+def _converge_in_workers(
+    config: SweepConfig, count: int, controller: str, poses, adjacency, disk_radius, on_progress=None
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """``_converge_starts`` over ``config.workers`` processes, the starts cut into chunks (four per
+    worker, so a slow chunk does not leave the others idle); each start's result is the same."""
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from multiprocessing import get_context
+
+    chunks = np.array_split(np.arange(len(poses)), min(len(poses), 4 * config.workers))
+    times = np.full(len(poses), np.nan)
+    disconnected = np.zeros(len(poses), dtype=bool) if adjacency is None else None
+    with ProcessPoolExecutor(config.workers, get_context("spawn"), initializer=_one_thread) as pool:
+        futures = {
+            pool.submit(
+                _converge_starts,
+                config,
+                count,
+                controller,
+                poses[chunk],
+                None if adjacency is None else np.ascontiguousarray(adjacency[chunk]),
+                disk_radius,
+            ): chunk
+            for chunk in chunks
+        }
+        for future in as_completed(futures):
+            chunk = futures[future]
+            times[chunk], chunk_disconnected = future.result()
+            if disconnected is not None:
+                disconnected[chunk] = chunk_disconnected
+            if on_progress is not None:
+                on_progress(float(np.nanmax(times[chunk], initial=0.0)), int(np.sum(~np.isnan(times))))
+    return times, disconnected
+
+
+def run_cell(config: SweepConfig, topology: str, count: int, controller: str, on_progress=None) -> dict:
+    """One (topology, N, controller) cell over ``config.seeds`` random starts."""
+    poses, adjacency, disk_radius = cell_starts(config, topology, count)
+    starts = len(poses)
+    converge = _converge_in_workers if config.workers > 1 and starts > 1 else _converge_starts
+    times, disconnected = converge(config, count, controller, poses, adjacency, disk_radius, on_progress)
     lower = np.array(
         [metrics.lower_bound_s(start[:, :2], config.threshold_m, config.v_max_mps) for start in poses]
     )
@@ -287,7 +346,7 @@ def summarize_cell(cell: dict) -> dict:
 def cell_settings(config: SweepConfig, controller: str) -> dict:
     """What a cached cell must have been run with: every setting but the grid; the model file's hash
     instead of its path (gnn only); ``first_starts`` only when set (older caches lack both)."""
-    grid = ("topologies", "sizes", "controllers", "model", "first_starts")
+    grid = ("topologies", "sizes", "controllers", "model", "first_starts", "workers")
     settings = {key: value for key, value in asdict(config).items() if key not in grid}
     if config.first_starts is not None:
         settings["first_starts"] = config.first_starts
