@@ -7,7 +7,13 @@ robot I (several runs behind one endpoint: give ``--run``).
 imports everything once and forks the agents before any Zenoh session exists (forking after a
 session is open hangs the child), which starts tens of agents in a fraction of a second.
 
-Exit status: 0 the run ended (the sim went away or SIGTERM), 1 the agent could not start.
+With ``sim.acl`` (``swarm.acl``) the sim server admits only authenticated agents: give
+``--credentials FILE`` (lines ``user:password``; ``{robot}`` in FILE stands for the robot id, one file
+per robot) or ``--user`` and ``--password``.
+
+Exit status: 0 the run ended (the sim went away or SIGTERM), 1 the agent could not start (one line on
+stderr says why: no sim at the endpoint within ``--startup-timeout``, refused credentials, a robot id
+the run does not have), 2 bad command-line input.
 """
 
 from __future__ import annotations
@@ -21,9 +27,12 @@ import sys
 import time
 from pathlib import Path
 
+import zenoh
+
 from robot_agent.agent import EXIT_FAILED, AgentOptions, RobotAgent
-from swarm import wire
+from swarm import acl, wire
 from swarm.procs import die_with_parent
+from swarm.usage import OneLineArgumentParser, one_line
 
 
 def parse_robots(text: str) -> list[int]:
@@ -37,15 +46,31 @@ def parse_robots(text: str) -> list[int]:
     return sorted(robots)
 
 
+def robot_id(text: str) -> int:
+    if not text.isdigit():
+        raise argparse.ArgumentTypeError(f"a robot id is a number >= 0, got {text!r}")
+    return int(text)
+
+
+def positive_seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = -1.0
+    if not 0 < value < float("inf"):
+        raise argparse.ArgumentTypeError(f"seconds > 0, got {text!r}")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineArgumentParser(
         prog="robot-agent",
         description="Run the controller of one robot (or one process per robot with --robots): fetch its "
         "configuration from the sim server over Zenoh, listen only to its own pose and its graph "
         "neighbours, and send wheel commands.",
     )
     which = parser.add_mutually_exclusive_group(required=True)
-    which.add_argument("--robot", type=int, help="robot id")
+    which.add_argument("--robot", type=robot_id, help="robot id")
     which.add_argument("--robots", type=parse_robots, help="several robot ids (0-5, 0,2,4): one process each")
     parser.add_argument(
         "--connect",
@@ -60,13 +85,52 @@ def build_parser() -> argparse.ArgumentParser:
         "--zenoh-mode", choices=["client", "peer"], default="client", help="session mode (default: client)"
     )
     parser.add_argument("--lease-ms", type=int, default=1000, help="Zenoh lease (default 1000 ms)")
-    parser.add_argument("--startup-timeout", type=float, default=60.0, help="seconds to reach the sim")
+    parser.add_argument(
+        "--startup-timeout",
+        type=positive_seconds,
+        default=60.0,
+        help="seconds to reach the sim and get the configuration, then give up (default 60)",
+    )
+    parser.add_argument(
+        "--credentials",
+        help="file of user:password lines for a sim with sim.acl ({robot} in the path: the robot id); "
+        "the line of user robot-<i>, or the only line",
+    )
+    parser.add_argument("--user", help="Zenoh user name (sim.acl; default with --password: robot-<i>)")
+    parser.add_argument("--password", help="Zenoh password (sim.acl; prefer --credentials: not in ps)")
     parser.add_argument("--log-dir", help="write agent_<i>.json (and agent_<i>.log with --robots) here")
     parser.add_argument("--die-with-parent", action="store_true", help="exit when the parent process dies")
     return parser
 
 
-def run_one(robot: int, args: argparse.Namespace) -> int:
+def zenoh_settings(robot: int, args: argparse.Namespace) -> dict:
+    """More session settings: a link may take no longer to open than the start-up timeout, and the
+    robot's credentials (``CredentialsError`` when they cannot be read)."""
+    open_timeout_ms = max(1, min(10_000, round(1e3 * args.startup_timeout)))
+    settings: dict = {"transport/unicast/open_timeout": open_timeout_ms}
+    if args.credentials:
+        settings.update(acl.client_settings(*acl.read_credentials(args.credentials, robot)))
+    elif args.password is not None:
+        settings.update(acl.client_settings(args.user or acl.user_of(robot), args.password))
+    return settings
+
+
+def describe_failure(record: dict, args: argparse.Namespace) -> str:
+    """Why an agent could not run, in one line, from its record."""
+    reason = str(record.get("exit_reason") or "failed")
+    if reason == "could not connect":
+        endpoints = ", ".join(args.connect or ["tcp/127.0.0.1:7447"])
+        reason = f"could not connect to {endpoints} within {args.startup_timeout:g} s"
+        if args.credentials or args.password is not None:
+            reason += " (no sim server there, or it refused the credentials)"
+    elif record.get("config_error") and record["config_error"] not in reason:
+        reason = f"{reason}: {record['config_error']}"
+    elif reason in ("no config from the sim", "no sim serves this robot"):
+        reason += f" within {args.startup_timeout:g} s"
+    return reason
+
+
+def run_one(robot: int, args: argparse.Namespace, settings: dict) -> int:
     options = AgentOptions(
         robot=robot,
         run=args.run,
@@ -75,14 +139,18 @@ def run_one(robot: int, args: argparse.Namespace) -> int:
         lease_ms=args.lease_ms,
         startup_timeout_s=args.startup_timeout,
         log_dir=Path(args.log_dir) if args.log_dir else None,
+        zenoh_settings=settings,
     )
     agent = RobotAgent(options)
     signal.signal(signal.SIGTERM, agent.request_stop)
     signal.signal(signal.SIGINT, agent.request_stop)
-    return agent.run()
+    code = agent.run()
+    if code != 0:  # one write: the launcher's agents share its stderr
+        sys.stderr.write(f"robot-agent: error: robot {robot}: {describe_failure(agent.record, args)}\n")
+    return code
 
 
-def _child(robot: int, args: argparse.Namespace) -> int:
+def _child(robot: int, args: argparse.Namespace, settings: dict) -> int:
     """In a forked child: own log file, die with the launcher, run the agent."""
     if args.log_dir:
         log = os.open(Path(args.log_dir) / f"agent_{robot}.log", os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
@@ -90,18 +158,18 @@ def _child(robot: int, args: argparse.Namespace) -> int:
         os.dup2(log, 2)
         os.close(log)
     die_with_parent()
-    return run_one(robot, args)
+    return run_one(robot, args, settings)
 
 
-def _exit_reason(log_dir: str | None, robot: int | None) -> str:
+def _exit_reason(args: argparse.Namespace, robot: int | None) -> str:
     try:
-        record = json.loads((Path(log_dir) / f"agent_{robot}.json").read_text())
+        record = json.loads((Path(args.log_dir) / f"agent_{robot}.json").read_text())
     except (TypeError, OSError, ValueError):
         return ""
-    return f": {record.get('exit_reason')}" if record.get("exit_reason") else ""
+    return f": {describe_failure(record, args)}" if record.get("exit_reason") else ""
 
 
-def launch(robots: list[int], args: argparse.Namespace) -> int:
+def launch(robots: list[int], args: argparse.Namespace, settings: dict[int, dict]) -> int:
     """Fork one agent process per robot and wait for them; SIGTERM/SIGINT are passed on."""
     children: dict[int, int] = {}
     stopping = False
@@ -112,6 +180,7 @@ def launch(robots: list[int], args: argparse.Namespace) -> int:
         for pid in children:
             with contextlib.suppress(ProcessLookupError):
                 os.kill(pid, signal.SIGTERM)
+                os.kill(pid, signal.SIGCONT)  # a stopped agent (hang_agent fault) must run to exit
 
     signal.signal(signal.SIGTERM, forward)
     signal.signal(signal.SIGINT, forward)
@@ -124,7 +193,7 @@ def launch(robots: list[int], args: argparse.Namespace) -> int:
         if pid == 0:
             code = EXIT_FAILED
             try:
-                code = _child(robot, args)
+                code = _child(robot, args, settings[robot])
             finally:
                 sys.stdout.flush()
                 sys.stderr.flush()
@@ -141,7 +210,7 @@ def launch(robots: list[int], args: argparse.Namespace) -> int:
         robot = children.pop(pid, None)
         code = os.waitstatus_to_exitcode(status)
         if code != 0:
-            why = _exit_reason(args.log_dir, robot)
+            why = _exit_reason(args, robot)
             print(
                 f"robot-agent: robot {robot} (pid {pid}) exited with {code}{why}", file=sys.stderr, flush=True
             )
@@ -153,18 +222,26 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.die_with_parent:
         die_with_parent()
+    robots = [args.robot] if args.robot is not None else args.robots
     try:
         if args.run is not None:
             wire.check_run_id(args.run)
-    except ValueError as error:
-        print(f"robot-agent: error: {error}", file=sys.stderr)
+        if args.credentials and (args.user or args.password is not None):
+            raise ValueError("give --credentials or --user/--password, not both")
+        if args.user and args.password is None:
+            raise ValueError("--user needs --password")
+        settings = {robot: zenoh_settings(robot, args) for robot in robots}
+        # endpoints of the right form, before any agent starts (each opens its own session)
+        wire.session_config(args.zenoh_mode, args.connect or [], (), args.lease_ms, settings[robots[0]])
+        if args.log_dir:
+            Path(args.log_dir).mkdir(parents=True, exist_ok=True)
+    except (ValueError, OSError, zenoh.ZError) as error:  # CredentialsError is a ValueError
+        print(f"robot-agent: error: {one_line(error)}", file=sys.stderr)
         return 2
-    if args.log_dir:
-        Path(args.log_dir).mkdir(parents=True, exist_ok=True)
     if args.robot is not None:
-        return run_one(args.robot, args)
+        return run_one(args.robot, args, settings[args.robot])
     start_s = time.perf_counter()
-    code = launch(args.robots, args)
+    code = launch(args.robots, args, settings)
     elapsed_s = time.perf_counter() - start_s
     print(f"robot-agent: {len(args.robots)} agents ended after {elapsed_s:.1f} s", flush=True)
     return code

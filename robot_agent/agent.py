@@ -11,7 +11,19 @@ neighbours' messages of tick k-1. ``lockstep``: it waits up to ``sim.neighbour_d
 receiving pose k) for the message of tick k-1 of every neighbour whose liveliness token is up; a
 message that misses it counts as lost and the neighbour is left out of that tick, as a dropped
 packet would be. ``realtime``: no waiting; each neighbour's latest message counts while it is at
-most ``STALE_TICKS`` old.
+most ``sim.message_max_age_ticks`` (default 10) old.
+
+Link faults (``swarm.faults``, from the scenario in the agent's config) act here, at the receiving
+end: the message of tick m from neighbour j counts only if the schedule says this robot heard it (link
+up, packet not lost), and under a delay d the newest usable message at tick k is that of tick k-1-d.
+A neighbour with no usable message is left out of the tick (the controller normalises over the
+neighbours heard; a robot that heard nobody holds still). The record counts each reason:
+``messages.dropped_by_fault`` (link down), ``lost_by_fault`` (packet loss), ``delayed_by_fault``
+(heard with a delay), ``lost`` (a message that did not come: a dead neighbour, a missed deadline).
+
+Nothing assumes the agent starts at tick 0: a restarted agent joins at the tick of the first pose it
+gets (it does not wait for messages of earlier ticks), and a neighbour whose liveliness token comes
+back after the first tick is waited for only from the first message it sends again.
 
 Receiving costs no Python thread: the pose, the neighbours' messages and their liveliness arrive in
 Zenoh ring channels (filled by Zenoh's own threads, never blocking them) that the main thread reads
@@ -22,7 +34,8 @@ of tick k-1 reaches the agent before its pose k (both pass the server's router i
 agent rarely waits; when it must, it polls the channels until the deadline.
 
 The agent holds the token ``swarm/<run>/alive/agent/<i>``, exits cleanly (session closed) on SIGTERM
-or SIGINT and when the sim's token ``swarm/<run>/alive/sim`` goes away, and records what it
+or SIGINT and when the sim's token ``swarm/<run>/alive/sim`` goes away (after the run's last tick at
+once, else when it stays away ``sim.server_lost_s``: a brief partition is survived), and records what it
 subscribed to and received in ``<log-dir>/agent_<i>.json`` (once it is ready, and again at exit).
 """
 
@@ -43,18 +56,22 @@ import numpy as np
 import zenoh
 
 from swarm import wire
+from swarm.faults import DROPPED, HEARD, LOST, LinkFaults, message_max_age_ticks, usable_ticks
 from swarm.onboard import robot_controller, wheels_one
 from swarm.robot import RobotParams
 
-STALE_TICKS = 10
-"""realtime: a neighbour message older than this many ticks is not used."""
+SERVER_LOST_S = 5.0
+"""How long the sim's token may be gone before the agent takes the sim as gone (until its config
+says ``sim.server_lost_s``): a brief network partition or a frozen process must not end the agent.
+Once the agent has computed the run's last tick it exits at once."""
 
 SIM_UNSEEN_S = 10.0
 """An agent that has not seen the sim's liveliness token for this long (after fetching its
 config from it) takes the sim as gone."""
 
 INBOX_TICKS = 8
-"""Messages kept per neighbour (by tick): a fast neighbour's tick-k message must not hide its k-1."""
+"""Messages kept per neighbour (by tick), at least: a fast neighbour's tick-k message must not hide
+its k-1 (more under a delay fault or a longer message age)."""
 
 POSE_RING = 4
 """Poses buffered by the pose channel; the newest is used, older ones count as skipped."""
@@ -86,16 +103,22 @@ class AgentOptions:
     lease_ms: int = 1000
     startup_timeout_s: float = 60.0
     log_dir: Path | None = None
+    zenoh_settings: dict = field(default_factory=dict)  # more session settings (swarm.acl credentials)
 
 
 @dataclass
 class Counters:
     poses_received: int = 0
     poses_invalid: int = 0
+    poses_old: int = 0  # tick not newer than the newest pose seen: a replay or reordered
     poses_skipped: int = 0
     messages_received: int = 0
     messages_invalid: int = 0
+    messages_old: int = 0  # tick not newer than the newest accepted from that neighbour
     messages_lost: int = 0
+    messages_dropped_by_fault: int = 0
+    messages_lost_by_fault: int = 0
+    messages_delayed_by_fault: int = 0
     messages_late: int = 0
     ticks: int = 0
     ticks_waited: int = 0
@@ -124,14 +147,25 @@ class RobotAgent:
         self._stop = False
         self._sim_alive: bool | None = None  # None: not seen yet
         self._sim_unseen = False
+        self._sim_lost_at: float | None = None  # monotonic time the sim's token went, while it is gone
+        self._server_lost_s = SERVER_LOST_S
+        self._final_tick: int | None = None  # the run's last tick, from the config
         self._blocking = False  # the main thread sits in a recv that a signal may interrupt
         self._main_thread: int | None = None  # set when signals can interrupt the main thread
         self._inbox: dict[int, dict[int, Sequence[float]]] = {}  # neighbour -> tick -> message
         self._msg_subs: dict[int, zenoh.Subscriber] = {}
+        self._newest_message_tick: dict[int, int] = {}  # neighbour -> tick of its newest message accepted
         self._alive_subs: dict[int, zenoh.Subscriber] = {}
         self._neighbours_alive: set[int] = set()
+        self._neighbours_gone: set[int] = set()  # neighbours whose token went away at least once
         self._lockstep = True
         self._last_tick = -1
+        self._first_tick: int | None = None  # the tick of the first pose this agent got (0 unless restarted)
+        self._joined: dict[int, int | None] = {}  # neighbour -> first tick to wait for; None: not yet heard
+        self._faults = LinkFaults([], 1.0)
+        self._max_age = 1
+        self._keep_ticks = 1  # how far back a message may still be used: largest delay + max age
+        self._inbox_ticks = INBOX_TICKS
         self._dim = 0
         self.config: wire.AgentConfig | None = None
         self.record: dict = {
@@ -148,6 +182,7 @@ class RobotAgent:
             "liveliness_tokens": [],
             "queries": [],
             "exit_reason": None,
+            "sim_lost": 0,  # times the sim's token went away (a partition, the sim's end)
         }
         self._started_s = time.perf_counter()
 
@@ -169,9 +204,26 @@ class RobotAgent:
             signal.pthread_kill(self._main_thread, WAKE_SIGNAL)
 
     def _on_sim_alive(self, sample: zenoh.Sample) -> None:
-        self._sim_alive = sample.kind == zenoh.SampleKind.PUT
-        if not self._sim_alive:
-            self._kick()
+        if sample.kind == zenoh.SampleKind.PUT:
+            self._sim_alive, self._sim_lost_at = True, None
+            return
+        self._sim_lost_at = lost_at = time.monotonic()
+        self.record["sim_lost"] += 1
+        if self._final_tick is not None and self._last_tick >= self._final_tick:
+            self._sim_gone()  # the run is over
+            return
+
+        def still_lost() -> None:
+            if self._sim_lost_at == lost_at:
+                self._sim_gone()
+
+        grace = threading.Timer(self._server_lost_s, still_lost)
+        grace.daemon = True
+        grace.start()
+
+    def _sim_gone(self) -> None:
+        self._sim_alive = False
+        self._kick()
 
     def _check_sim_seen(self) -> None:
         if self._sim_alive is None:
@@ -206,12 +258,15 @@ class RobotAgent:
         for j, subscriber in self._alive_subs.items():
             while (sample := subscriber.try_recv()) is not None:
                 if sample.kind == zenoh.SampleKind.PUT:
+                    if j not in self._neighbours_alive:  # back after a crash: wait once it talks again
+                        self._joined[j] = None if j in self._neighbours_gone else 0
                     self._neighbours_alive.add(j)
                 else:
                     self._neighbours_alive.discard(j)
+                    self._neighbours_gone.add(j)
 
     def _drain_messages(self) -> None:
-        counters = self.counters
+        counters, newest = self.counters, self._newest_message_tick
         for j, subscriber in self._msg_subs.items():
             box = self._inbox[j]
             while (sample := subscriber.try_recv()) is not None:
@@ -219,13 +274,19 @@ class RobotAgent:
                 if decoded is None:
                     counters.messages_invalid += 1
                     continue
-                counters.messages_received += 1
                 tick, values = decoded
-                if self._lockstep and tick < self._last_tick - 1:
-                    counters.messages_late += 1  # the tick that needed it is computed already
+                if tick <= newest.get(j, -1):
+                    counters.messages_old += 1
+                    continue
+                newest[j] = tick
+                counters.messages_received += 1
+                if self._lockstep and tick < self._last_tick - self._keep_ticks:
+                    counters.messages_late += 1  # every tick that could use it is computed already
                     continue
                 box[tick] = values
-                if len(box) > INBOX_TICKS:
+                if self._joined.get(j, 0) is None:
+                    self._joined[j] = tick  # a neighbour back from a crash: wait for it from here on
+                if len(box) > self._inbox_ticks:
                     del box[min(box)]
 
     def _next_pose(self, subscriber: zenoh.Subscriber) -> wire.Pose | None:
@@ -237,23 +298,38 @@ class RobotAgent:
                 pose = wire.decode_pose(sample.payload.to_bytes())
                 if pose is None:
                     counters.poses_invalid += 1
+                elif pose.tick <= (self._last_tick if newest is None else newest.tick):
+                    counters.poses_old += 1
                 else:
                     counters.poses_received += 1
-                    if pose.tick > self._last_tick and (newest is None or pose.tick > newest.tick):
-                        if newest is not None:
-                            counters.poses_skipped += 1  # a newer pose came before we used this one
-                        newest = pose
+                    if newest is not None:
+                        counters.poses_skipped += 1  # a newer pose came before we used this one
+                    newest = pose
                 sample = subscriber.try_recv()
             if self._ended():
                 return None
         return newest
 
+    def _waiting_for(self, tick: int) -> bool:
+        """lockstep: whether a live neighbour's message that ``tick`` needs (that of tick k-1-delay)
+        may still come: not from before this agent's first tick or the neighbour's return, not one the
+        link faults drop anyway."""
+        faults, me, first_tick = self._faults, self.robot, self._first_tick
+        for j in self._neighbours_alive:
+            needed = tick - 1 if faults.empty else tick - 1 - faults.delay_ticks(j, me, tick)
+            joined = self._joined.get(j, 0)
+            if needed < first_tick or joined is None or needed < joined or needed in self._inbox[j]:
+                continue
+            if faults.empty or faults.heard(j, me, needed):
+                return True
+        return False
+
     def _wait_for_messages(self, tick: int, until_s: float) -> None:
-        """lockstep: poll until every live neighbour's message of ``tick - 1`` is in, or the deadline."""
+        """lockstep: poll until every live neighbour's needed message is in, or the deadline."""
         while True:
             self._drain_liveliness()
             self._drain_messages()
-            if all(tick - 1 in self._inbox[j] for j in self._neighbours_alive):
+            if not self._waiting_for(tick):
                 return
             if time.perf_counter() >= until_s or self._ended():
                 return
@@ -261,8 +337,9 @@ class RobotAgent:
 
     # ------------------------------------------------------------------ main thread
     def _open(self) -> zenoh.Session | None:
+        options = self.options
         config = lambda: wire.session_config(  # noqa: E731 (a fresh config per attempt)
-            self.options.zenoh_mode, self.options.connect, (), self.options.lease_ms
+            options.zenoh_mode, options.connect, (), options.lease_ms, options.zenoh_settings
         )
         deadline_s = self._started_s + self.options.startup_timeout_s
         delay_s = 0.01
@@ -347,7 +424,8 @@ class RobotAgent:
             self.keys = wire.Keys(self.run_id)
             self.record["run"] = self.run_id
         record, keys = self.record, self.keys
-        sim_sub = session.liveliness().declare_subscriber(keys.alive_sim, self._on_sim_alive, history=True)
+        on_sim_alive = wire.guarded(self._on_sim_alive, record, f"robot-agent {self.robot}")
+        sim_sub = session.liveliness().declare_subscriber(keys.alive_sim, on_sim_alive, history=True)
         record["liveliness_subscriptions"].append(keys.alive_sim)
         config = self._fetch_config(session)
         if config is None:
@@ -355,6 +433,9 @@ class RobotAgent:
             sim_sub.undeclare()
             return EXIT_FAILED
         self.config = config
+        sim_spec = config.scenario.get("sim", {})
+        self._server_lost_s = float(sim_spec.get("server_lost_s", SERVER_LOST_S))
+        self._final_tick = round(sim_spec.get("duration_s", 0) / config.control_period_s) - 1
         params = RobotParams(**config.robot_params)
         try:
             controller = robot_controller(
@@ -366,6 +447,15 @@ class RobotAgent:
             return EXIT_FAILED
         self._dim = controller.message_dim
         self._lockstep = config.mode == "lockstep"
+        try:
+            self._faults = LinkFaults.from_scenario_dict(config.scenario)
+            self._max_age = message_max_age_ticks({"mode": config.mode, **config.scenario.get("sim", {})})
+        except (KeyError, TypeError, ValueError) as error:
+            record["exit_reason"] = f"bad faults in the config: {error}"
+            sim_sub.undeclare()
+            return EXIT_FAILED
+        self._keep_ticks = self._faults.max_delay_ticks + self._max_age
+        self._inbox_ticks = max(INBOX_TICKS, self._keep_ticks + 2)
         record.update(
             controller=config.controller,
             mode=config.mode,
@@ -417,16 +507,19 @@ class RobotAgent:
         weight_of = dict(zip(config.neighbours, config.weights, strict=True))
         counters, dim = self.counters, controller.message_dim
         act_floats = getattr(controller, "act_floats", None)
+        faults, me, max_age = self._faults, self.robot, self._max_age
+        no_faults = faults.empty
         while True:
             pose = self._next_pose(pose_sub)
             if pose is None:
                 self.record["exit_reason"] = "stopped" if self._stop else "sim gone"
                 return EXIT_DONE
             tick = self._last_tick = pose.tick
+            if self._first_tick is None:  # 0, or later for an agent restarted mid-run
+                self._first_tick = self.record["first_tick"] = tick
             self._drain_liveliness()
             self._drain_messages()
-            live = self._neighbours_alive
-            if lockstep and tick > 0 and not all(tick - 1 in self._inbox[j] for j in live):
+            if lockstep and self._waiting_for(tick):
                 wait_start_s = time.perf_counter()
                 self._wait_for_messages(tick, wait_start_s + config.neighbour_deadline_s)
                 counters.neighbour_wait_s.append(time.perf_counter() - wait_start_s)
@@ -435,17 +528,26 @@ class RobotAgent:
             heard, messages = [], []
             for j in neighbours:
                 box = self._inbox[j]
-                if lockstep:
-                    values = box.get(tick - 1)
-                else:
-                    recent = [k for k in box if tick - STALE_TICKS <= k < tick]
-                    values = box[max(recent)] if recent else None
+                delay = 0 if no_faults else faults.delay_ticks(j, me, tick)
+                values = None
+                for k in usable_ticks(tick, delay, max_age):  # newest first
+                    values = box.get(k)
+                    if values is not None and (no_faults or faults.heard(j, me, k)):
+                        break
+                    values = None
+                needed = tick - 1 - delay  # what the timing names; older ones only stand in for it
+                reason = HEARD if no_faults or needed < 0 else faults.reason(j, me, needed)
+                if reason == DROPPED:
+                    counters.messages_dropped_by_fault += 1
+                elif reason == LOST:
+                    counters.messages_lost_by_fault += 1
+                elif values is None and needed >= self._first_tick:
+                    counters.messages_lost += 1  # did not come: a dead neighbour, a missed deadline
                 if values is not None:
                     heard.append(j)
                     messages.append(values)
-                elif tick > 0:
-                    counters.messages_lost += 1
-            oldest = tick - (1 if lockstep else STALE_TICKS)
+                    counters.messages_delayed_by_fault += delay > 0
+            oldest = tick - self._keep_ticks
             for box in self._inbox.values():  # drop what can no longer be used
                 for k in [k for k in box if k < oldest]:
                     del box[k]
@@ -471,13 +573,18 @@ class RobotAgent:
             poses={
                 "received": counters.poses_received,
                 "invalid": counters.poses_invalid,
+                "old": counters.poses_old,
                 "skipped": counters.poses_skipped,
             },
             messages={
                 "received": counters.messages_received,
                 "invalid": counters.messages_invalid,
+                "old": counters.messages_old,
                 "lost": counters.messages_lost,
                 "late": counters.messages_late,
+                "dropped_by_fault": counters.messages_dropped_by_fault,
+                "lost_by_fault": counters.messages_lost_by_fault,
+                "delayed_by_fault": counters.messages_delayed_by_fault,
             },
             ticks_waited=counters.ticks_waited,
             neighbour_wait_ms=_stats_ms(counters.neighbour_wait_s),

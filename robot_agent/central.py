@@ -10,7 +10,6 @@ for N agents, and records itself in ``<log-dir>/central.json``.
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import signal
@@ -27,6 +26,7 @@ from swarm import wire
 from swarm.experts import complete_consensus_velocity
 from swarm.procs import die_with_parent
 from swarm.robot import RobotParams, controlled_point, point_velocity_to_wheels
+from swarm.usage import EXIT_BAD_INPUT, OneLineArgumentParser, one_line
 
 POSE_DEADLINE_S = 1.0
 """Longest the central controller waits for the rest of a tick's poses once the first one came."""
@@ -43,6 +43,7 @@ class CentralController:
         self._stop = False
         self._sim_alive: bool | None = None
         self._poses: dict[int, dict[int, wire.Pose]] = {}  # tick -> robot -> pose
+        self._last_tick = -1  # the newest tick computed
         self.record: dict = {
             "role": "centralized",
             "pid": os.getpid(),
@@ -54,6 +55,8 @@ class CentralController:
             "liveliness_tokens": [],
             "ticks": 0,
             "poses_invalid": 0,
+            "poses_old": 0,
+            "callback_errors": 0,
             "incomplete_ticks": 0,
             "exit_reason": None,
         }
@@ -72,6 +75,9 @@ class CentralController:
         with self._cond:
             if pose is None or robot is None:
                 self.record["poses_invalid"] += 1
+                return
+            if pose.tick <= self._last_tick:
+                self.record["poses_old"] += 1  # its tick is computed already: a replay or reordered
                 return
             self._poses.setdefault(pose.tick, {})[robot] = pose
             self._cond.notify_all()
@@ -112,7 +118,9 @@ class CentralController:
 
     def _run(self, session: zenoh.Session, started_s: float) -> int:
         keys, record = self.keys, self.record
-        entities = [session.liveliness().declare_subscriber(keys.alive_sim, self._on_sim_alive, history=True)]
+        guard = lambda callback: wire.guarded(callback, record, "robot_agent.central")  # noqa: E731
+        on_sim_alive = guard(self._on_sim_alive)
+        entities = [session.liveliness().declare_subscriber(keys.alive_sim, on_sim_alive, history=True)]
         record["liveliness_subscriptions"].append(keys.alive_sim)
         config = self._fetch_config(session, started_s)
         if config is None:
@@ -120,7 +128,7 @@ class CentralController:
             return 1
         count, gain = config.robot_count, config.gain
         params = RobotParams(**config.robot_params)
-        entities.append(session.declare_subscriber(keys.all_poses, self._on_pose))
+        entities.append(session.declare_subscriber(keys.all_poses, guard(self._on_pose)))
         record["subscriptions"].append(keys.all_poses)
         options = wire.publisher_options(config.mode)
         publishers = [session.declare_publisher(keys.cmd(i), **options) for i in range(count)]
@@ -130,9 +138,9 @@ class CentralController:
             entities.append(session.liveliness().declare_token(keys.alive_agent(i)))
             record["liveliness_tokens"].append(keys.alive_agent(i))
         record["ready_s"] = round(time.perf_counter() - started_s, 4)
-        last_tick = -1
         try:
             while True:
+                last_tick = self._last_tick
                 with self._cond:
                     self._wait(lambda last=last_tick: any(k > last for k in self._poses), float("inf"))
                     if self._stop or self._sim_alive is False:
@@ -146,7 +154,7 @@ class CentralController:
                     got = self._poses.pop(tick)
                     for old in [k for k in self._poses if k <= tick]:
                         del self._poses[old]
-                last_tick = tick
+                    self._last_tick = tick
                 robots = sorted(got)
                 record["incomplete_ticks"] += len(robots) < count
                 poses = np.array([got[i].array() for i in robots])
@@ -167,7 +175,7 @@ class CentralController:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
+    parser = OneLineArgumentParser(
         prog="python -m robot_agent.central",
         description="The centralized expert (eq. 3.1 on the complete graph) as one process for all robots.",
     )
@@ -180,12 +188,28 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.die_with_parent:
         die_with_parent()
-    central = CentralController(
-        args.run, args.connect or ["tcp/127.0.0.1:7447"], args.lease_ms, args.startup_timeout, args.log_dir
-    )
+    connect = args.connect or ["tcp/127.0.0.1:7447"]
+    try:
+        if not 0 < args.startup_timeout < float("inf"):
+            raise ValueError(f"--startup-timeout must be > 0 seconds, got {args.startup_timeout:g}")
+        wire.session_config("client", connect, (), args.lease_ms)  # endpoints of the right form
+        central = CentralController(args.run, connect, args.lease_ms, args.startup_timeout, args.log_dir)
+        if central.log_dir is not None:
+            central.log_dir.mkdir(parents=True, exist_ok=True)
+    except (ValueError, OSError, zenoh.ZError) as error:
+        print(f"robot_agent.central: error: {one_line(error)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     signal.signal(signal.SIGTERM, central.request_stop)
     signal.signal(signal.SIGINT, central.request_stop)
-    return central.run()
+    code = central.run()
+    if code != 0:
+        reason = central.record["exit_reason"]
+        if reason == "could not connect":
+            reason = f"could not connect to {', '.join(connect)} within {args.startup_timeout:g} s"
+        elif reason == "no config from the sim":
+            reason = f"no config of run {args.run} from the sim within {args.startup_timeout:g} s"
+        print(f"robot_agent.central: error: {reason}", file=sys.stderr)
+    return code
 
 
 if __name__ == "__main__":

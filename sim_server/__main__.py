@@ -1,6 +1,11 @@
 """``python -m sim_server --scenario FILE --out DIR --run RUN --listen ENDPOINT``: the PyBullet sim server.
 
-Exit status: 0 the run completed, 1 it failed (agents did not come up), 2 bad input, 3 interrupted.
+Exit status: 0 the run completed, 1 it failed (agents did not come up), 2 bad input (one line on
+stderr: a scenario that does not load, an endpoint that cannot be listened on, ...), 3 interrupted.
+
+A scenario with ``sim.acl: true`` needs ``--users FILE``: the agents' ``user:password`` lines
+(``python -m swarm.acl credentials``); the router then admits only those users, each to its own
+neighbourhood of the graph (``swarm.acl``).
 """
 
 from __future__ import annotations
@@ -9,14 +14,16 @@ import argparse
 import sys
 from pathlib import Path
 
-from sim_server.server import EXIT_BAD_INPUT, ServerOptions, SimServer, install_signal_handlers
-from swarm import wire
+import zenoh
+
+from swarm import acl, wire
 from swarm.procs import die_with_parent
 from swarm.scenario import ScenarioError, load_scenario, resolve_model_path
+from swarm.usage import EXIT_BAD_INPUT, OneLineArgumentParser, one_line, silenced_stderr
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineArgumentParser(
         prog="python -m sim_server",
         description="Simulate a scenario's robots in PyBullet and serve them to robot agents over Zenoh.",
     )
@@ -35,6 +42,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--model", help="policy file for controller gnn (default: the scenario's)")
     parser.add_argument("--lease-ms", type=int, default=1000, help="Zenoh lease (default 1000 ms)")
+    parser.add_argument(
+        "--users", help="sim.acl: file of the agents' user:password lines (python -m swarm.acl credentials)"
+    )
     parser.add_argument("--startup-timeout", type=float, default=60.0, help="seconds to wait for all agents")
     parser.add_argument("--die-with-parent", action="store_true", help="exit when the parent process dies")
     parser.add_argument("--quiet", action="store_true")
@@ -45,6 +55,8 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.die_with_parent:
         die_with_parent()
+    with silenced_stderr():  # pybullet prints its build time on stderr when imported
+        from sim_server.server import ServerOptions, SimServer, install_signal_handlers
     try:
         scenario = load_scenario(args.scenario)
         wire.check_run_id(args.run)
@@ -52,6 +64,11 @@ def main(argv: list[str] | None = None) -> int:
         model = args.model or scenario.controller.model
         if scenario.controller.kind == "gnn":
             policy = resolve_model_path(model, Path(args.scenario)).read_bytes()
+        settings = {}
+        if scenario.sim.acl:
+            settings = acl_settings(scenario, args)
+        elif args.users:
+            raise ValueError(f"--users is for scenarios with sim.acl: true, and {args.scenario} has not")
         options = ServerOptions(
             run=args.run,
             out_dir=Path(args.out),
@@ -62,13 +79,38 @@ def main(argv: list[str] | None = None) -> int:
             startup_timeout_s=args.startup_timeout,
             policy=policy,
             quiet=args.quiet,
+            zenoh_settings=settings,
         )
+        # endpoints and settings of the right form, before anything starts (serve() opens the session)
+        wire.session_config(options.zenoh_mode, options.connect, options.listen, args.lease_ms, settings)
         server = SimServer(scenario, options)
-    except (ScenarioError, ValueError) as error:
-        print(f"sim_server: error: {error}", file=sys.stderr)
+    except (ScenarioError, ValueError, OSError, zenoh.ZError) as error:
+        print(f"sim_server: error: {one_line(error)}", file=sys.stderr)
         return EXIT_BAD_INPUT
     install_signal_handlers(server)
-    return server.serve()
+    try:
+        return server.serve()
+    except zenoh.ZError as error:  # e.g. the --listen port is in use
+        print(f"sim_server: error: cannot open the Zenoh session: {one_line(error)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except OSError as error:  # the results directory cannot be written
+        print(f"sim_server: error: {one_line(error)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+
+
+def acl_settings(scenario, args: argparse.Namespace) -> dict:
+    """The router's authentication and access control for a scenario with ``sim.acl``."""
+    if args.zenoh_mode != "router":
+        raise ValueError("sim.acl needs --zenoh-mode router: the agents are clients of its access control")
+    if not args.users:
+        raise ValueError(
+            f"{args.scenario} sets sim.acl: give --users FILE of the agents' user:password lines"
+            " (python -m swarm.acl credentials --robots N --out DIR writes one)"
+        )
+    users = Path(args.users)
+    if not users.is_file():
+        raise ValueError(f"{users}: no such users file")
+    return acl.router_settings(wire.Keys(args.run), scenario.adjacency(), users.resolve())
 
 
 if __name__ == "__main__":

@@ -9,7 +9,9 @@ physics by one control period.
 for tick k has arrived, or ``sim.deadline_s`` has passed, then steps. A command that misses the
 deadline is dropped (counted); the robot keeps its last command until ``sim.watchdog_s`` of sim
 time without a fresh one, then stops. An agent whose liveliness token disappears (crash, SIGKILL,
-lease expiry of a frozen process) is not waited for and its robot stops at the next tick.
+lease expiry of a frozen process or a cut network link) is not waited for and its robot stops at
+the next tick; when a token of that robot appears again (a restarted agent, a thawed one, the link
+back) the server waits for its commands again from the next tick on.
 
 ``realtime``: physics runs on the wall clock, one control period per period of wall time: the poses
 of tick k go out at its wall-clock boundary ``k * period``; the latest command of each robot applies
@@ -19,16 +21,21 @@ time, or whose agent died, stops.
 
 The server also answers ``swarm/<run>/config/<i>`` queries with robot i's configuration
 (``swarm.wire.AgentConfig``: scenario, robot parameters, graph neighbours, controller, policy
-file) and holds the liveliness token ``swarm/<run>/alive/sim``; agents exit when it goes away.
+file) and holds the liveliness token ``swarm/<run>/alive/sim``; agents exit when it goes away
+(for good: ``sim.server_lost_s``). A command that does not decode (``swarm.wire``) is dropped and
+counted as invalid, one whose tick is not newer than the last accepted from that robot as old.
 Each ``trajectory.jsonl`` line also carries ``wheels``: the (saturated) wheel speeds applied from
 that tick to the next, so the controller's timing can be checked after the run. Per-tick statistics
-(ticks served, command latency) go to ``server_stats.json``.
+(ticks served, command latency) go to ``server_stats.json``, with, per robot, the ticks without a
+command of that tick, the ticks its agent was gone, and the sim times its agent went and came back;
+the file is rewritten every ``STATS_EVERY_S`` while the run goes on (a killed server leaves it).
 """
 
 from __future__ import annotations
 
 import json
 import math
+import os
 import signal
 import threading
 import time
@@ -46,6 +53,10 @@ from swarm.scenario import Scenario
 
 EXIT_DONE, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 3
 
+STATS_EVERY_S = 1.0
+"""While the run goes on, ``server_stats.json`` is rewritten (atomically) at most this often, so a
+killed server still leaves its counters of a moment ago."""
+
 
 @dataclass
 class ServerOptions:
@@ -58,6 +69,7 @@ class ServerOptions:
     startup_timeout_s: float = 60.0
     policy: bytes | None = None
     quiet: bool = False
+    zenoh_settings: dict = field(default_factory=dict)  # more session settings (swarm.acl)
 
 
 def agent_configs(scenario: Scenario, run: str, policy: bytes | None) -> list[wire.AgentConfig]:
@@ -118,13 +130,22 @@ class SimServer:
         self._stop = False
         self._tick = -1
         self._alive: set[int] = set()
+        self._expected: set[int] = set()  # live agents when this tick's poses went out: waited for
+        self._seen: set[int] = set()  # robots whose agent was alive at some point
+        self._started_s = time.perf_counter()
+        self._ticks_without_command = np.zeros(self.count, dtype=int)
+        self._ticks_dead = np.zeros(self.count, dtype=int)
         self._cmds: dict[int, tuple[wire.Command, float]] = {}  # lockstep: this tick's; realtime: latest
         self._fresh: set[int] = set()  # robots whose command of the current tick is in
         self._published_at_s: dict[int, float] = {}
+        self._newest_cmd_tick: dict[int, int] = {}  # robot -> tick of the newest command accepted
+        self._stats_written_s = time.perf_counter()
         self.stats = {
             "invalid_commands": 0,
             "late_commands": 0,
             "future_commands": 0,
+            "old_commands": 0,
+            "callback_errors": 0,
             "config_queries": 0,
             "agent_events": [],
         }
@@ -142,20 +163,23 @@ class SimServer:
             if cmd.tick > self._tick:
                 self.stats["future_commands"] += 1
                 return
+            if cmd.tick <= self._newest_cmd_tick.get(robot, -1):
+                self.stats["old_commands"] += 1  # not newer than one accepted: a replay or reordered
+                return
             if lockstep and cmd.tick < self._tick:
                 self.stats["late_commands"] += 1
                 return
-            previous = self._cmds.get(robot)
-            if previous is None or previous[0].tick <= cmd.tick:
-                self._cmds[robot] = (cmd, now_s)
+            self._cmds[robot] = (cmd, now_s)
+            self._newest_cmd_tick[robot] = cmd.tick
             if cmd.tick == self._tick:
                 self._fresh.add(robot)
                 if self._all_fresh():  # wake the main thread once per tick, not once per command
                     self._cond.notify_all()
 
     def _all_fresh(self) -> bool:
-        """Every live agent's command of the current tick is in (lock held)."""
-        return len(self._fresh) >= len(self._alive) and self._alive.issubset(self._fresh)
+        """Every expected agent's command of the current tick is in (lock held). An agent that
+        (re)joined after this tick's poses went out is waited for from the next tick on."""
+        return len(self._fresh) >= len(self._expected) and self._expected.issubset(self._fresh)
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         robot = self.keys.robot_of(str(sample.key_expr), "alive")
@@ -163,12 +187,22 @@ class SimServer:
             return
         with self._cond:
             if sample.kind == zenoh.SampleKind.PUT:
+                event = "back" if robot in self._seen else "alive"
                 self._alive.add(robot)
-                event = "alive"
+                self._seen.add(robot)
             else:
                 self._alive.discard(robot)
+                self._expected.discard(robot)
                 event = "gone"
-            self.stats["agent_events"].append({"robot": robot, "event": event, "tick": self._tick})
+            self.stats["agent_events"].append(
+                {
+                    "robot": robot,
+                    "event": event,
+                    "tick": self._tick,
+                    "time_s": round(max(self._tick, 0) * self.dt_s, 9),
+                    "wall_s": round(time.perf_counter() - self._started_s, 4),
+                }
+            )
             self._cond.notify_all()
 
     def _on_query(self, query: zenoh.Query) -> None:
@@ -207,17 +241,20 @@ class SimServer:
         scenario, options = self.scenario, self.options
         sim = scenario.sim
         prepare_results_dir(options.out_dir, scenario)
-        started_s = time.perf_counter()
+        started_s = self._started_s = time.perf_counter()
         world = PhysicsWorld(scenario.robot, scenario.initial_poses(), sim.physics_hz, sim.solver_iterations)
-        config = wire.session_config(options.zenoh_mode, options.connect, options.listen, options.lease_ms)
+        config = wire.session_config(
+            options.zenoh_mode, options.connect, options.listen, options.lease_ms, options.zenoh_settings
+        )
         outcome = EXIT_FAILED
         try:
             with zenoh.open(config) as session:
                 token = session.liveliness().declare_token(self.keys.alive_sim)
-                queryable = session.declare_queryable(self.keys.all_configs, self._on_query)
-                cmd_sub = session.declare_subscriber(self.keys.all_cmds, self._on_cmd)
+                guard = lambda callback: wire.guarded(callback, self.stats, "sim_server")  # noqa: E731
+                queryable = session.declare_queryable(self.keys.all_configs, guard(self._on_query))
+                cmd_sub = session.declare_subscriber(self.keys.all_cmds, guard(self._on_cmd))
                 alive_sub = session.liveliness().declare_subscriber(
-                    self.keys.all_alive_agents, self._on_alive, history=True
+                    self.keys.all_alive_agents, guard(self._on_alive), history=True
                 )
                 stream = wire.publisher_options(sim.mode)
                 publishers = [
@@ -257,6 +294,7 @@ class SimServer:
         time_s = tick * self.dt_s
         with self._cond:
             self._tick = tick
+            self._expected = set(self._alive)
             self._fresh.clear()
             if self.scenario.sim.mode == "lockstep":
                 self._cmds.clear()
@@ -294,7 +332,7 @@ class SimServer:
                 self._publish(publishers, tick, poses)
                 deadline_s = self._published_at_s[tick] + sim.deadline_s
                 with self._cond:
-                    all_in = self._wait(lambda: self._alive.issubset(self._cmds), deadline_s)
+                    all_in = self._wait(lambda: self._expected.issubset(self._cmds), deadline_s)
                     cmds, alive = dict(self._cmds), set(self._alive)
                 if self._stop:
                     return EXIT_INTERRUPTED
@@ -309,10 +347,12 @@ class SimServer:
                         wheels[i] = 0.0
                     if i in alive and i not in cmds:
                         missed_by_robot[i] += 1
+                self._count_robot_ticks(cmds, alive)
                 del self._published_at_s[tick]
                 step_wall_s, step_cpu_s = self._apply_and_step(world, trajectory, tick, poses, wheels)
                 physics_s += step_wall_s
                 physics_cpu_s += step_cpu_s
+                self._write_stats_now_and_then(tick)
         self.stats.update(
             ticks=steps,
             ticks_served=served,
@@ -370,10 +410,12 @@ class SimServer:
                     if i not in alive or now_s - last_fresh_s[i] > sim.watchdog_s:
                         wheels[i] = 0.0
                 served += fresh >= len(alive)
+                self._count_robot_ticks({i: c for i, c in cmds.items() if c[0].tick == tick}, alive)
                 self._published_at_s.pop(tick - 20, None)
                 step_wall_s, step_cpu_s = self._apply_and_step(world, trajectory, tick, poses, wheels)
                 physics_s += step_wall_s
                 physics_cpu_s += step_cpu_s
+                self._write_stats_now_and_then(tick)
         wall_s = time.perf_counter() - start_s
         self.stats.update(
             ticks=steps,
@@ -388,18 +430,51 @@ class SimServer:
         )
         return EXIT_DONE
 
-    def _write_stats(self, outcome: int) -> None:
+    def _count_robot_ticks(self, cmds: dict, alive: set[int]) -> None:
+        """Per robot: one more tick without a command of this tick, one more with its agent gone."""
+        for i in range(self.count):
+            self._ticks_without_command[i] += i not in cmds
+            self._ticks_dead[i] += i not in alive
+
+    def _write_stats_now_and_then(self, tick: int) -> None:
+        if time.perf_counter() >= self._stats_written_s + STATS_EVERY_S:
+            self.stats["ticks_done"] = tick + 1
+            self._write_stats(None)
+
+    def _per_robot(self) -> list[dict]:
+        """Ticks without a command (agent gone, late or hung) and when each agent went and came back."""
+        with self._cond:
+            events = list(self.stats["agent_events"])
+        return [
+            {
+                "robot": i,
+                "ticks_without_command": int(self._ticks_without_command[i]),
+                "ticks_agent_gone": int(self._ticks_dead[i]),
+                "gone_at_s": [e["time_s"] for e in events if e["robot"] == i and e["event"] == "gone"],
+                "back_at_s": [e["time_s"] for e in events if e["robot"] == i and e["event"] == "back"],
+            }
+            for i in range(self.count)
+        ]
+
+    def _write_stats(self, outcome: int | None) -> None:
+        """``server_stats.json``, replaced atomically; ``outcome`` None: the run goes on."""
+        exits = {None: "running", EXIT_DONE: "done", EXIT_FAILED: "failed", EXIT_INTERRUPTED: "interrupted"}
         stats = {
             "run": self.options.run,
             "mode": self.scenario.sim.mode,
             "robots": self.count,
             "control_period_s": self.dt_s,
             "deadline_s": self.scenario.sim.deadline_s,
-            "exit": {EXIT_DONE: "done", EXIT_FAILED: "failed", EXIT_INTERRUPTED: "interrupted"}.get(outcome),
-            **self.stats,
+            "exit": exits.get(outcome),
         }
+        with self._cond:  # the Zenoh threads append agent events
+            stats.update(self.stats, agent_events=list(self.stats["agent_events"]))
+        stats["per_robot"] = self._per_robot()
         path = self.options.out_dir / "server_stats.json"
-        path.write_text(json.dumps(stats, indent=2) + "\n")
+        temporary = path.with_suffix(".json.tmp")
+        temporary.write_text(json.dumps(stats, indent=2) + "\n")
+        os.replace(temporary, path)
+        self._stats_written_s = time.perf_counter()
 
 
 def install_signal_handlers(server: SimServer) -> None:

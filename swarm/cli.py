@@ -86,6 +86,21 @@ def cmd_run(args: argparse.Namespace) -> int:
     )
     outcome = run_scenario(scenario, out_dir, path, progress=not args.quiet)
     print("\n".join(_summary_lines(outcome, out_dir)))
+    if outcome.get("incomplete"):  # e.g. a kill_server fault ended the run early
+        print(f"swarm run: run incomplete: {outcome['incomplete']}", file=sys.stderr)
+        return EXIT_NOT_MET
+    return EXIT_SUCCESS if outcome["converged"] else EXIT_NOT_MET
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from swarm.results import report
+
+    out_dir = Path(args.run_dir)
+    outcome = report(out_dir)
+    print("\n".join(_summary_lines(outcome, out_dir)))
+    if outcome.get("incomplete"):
+        print(f"swarm report: run incomplete: {outcome['incomplete']}", file=sys.stderr)
+        return EXIT_NOT_MET
     return EXIT_SUCCESS if outcome["converged"] else EXIT_NOT_MET
 
 
@@ -214,7 +229,9 @@ def cmd_collect(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    from swarm.usage import OneLineArgumentParser
+
+    parser = OneLineArgumentParser(
         prog="swarm",
         description="Decentralized GNN controllers for differential-drive robot swarms: "
         "run scenarios, sweep experiments.",
@@ -238,6 +255,16 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--duration", type=float, help="override sim.duration_s (simulated seconds)")
     run.add_argument("--quiet", action="store_true", help="no progress bar")
     run.set_defaults(handler=cmd_run)
+
+    report = commands.add_parser(
+        "report",
+        help="re-create metrics.json and the plots of a results directory from what is on disk",
+        description="Read a results directory back (scenario.yaml, trajectory.jsonl up to its last complete "
+        "line, events.jsonl) and rewrite metrics.json, convergence.png and animation.gif: for a run "
+        "that was killed or ended early. Exit 0 success met, 1 not met or the run incomplete, 2 unreadable.",
+    )
+    report.add_argument("run_dir", help="results directory of a run")
+    report.set_defaults(handler=cmd_report)
 
     sweep = commands.add_parser(
         "sweep",
@@ -329,12 +356,20 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     from swarm.scenario import ScenarioError
+    from swarm.usage import one_line
 
     args = build_parser().parse_args(argv)
     try:
         return args.handler(args)
     except (ScenarioError, UsageError) as error:
         print(f"swarm {args.command}: error: {error}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except OSError as error:  # a file or directory that cannot be read or written
+        where = f"{error.filename}: " if error.filename else ""
+        print(f"swarm {args.command}: error: {where}{error.strerror or one_line(error)}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except ValueError as error:  # bad content found late, e.g. a policy file that is not one
+        print(f"swarm {args.command}: error: {one_line(error)}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print(f"swarm {args.command}: interrupted", file=sys.stderr)

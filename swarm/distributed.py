@@ -8,29 +8,42 @@ plus the processes' logs and runtime statistics. Every process lives in a proces
 stopped (SIGTERM, then SIGKILL after a grace period) when the run ends, fails or is interrupted;
 the children also die with their parent (``swarm.procs.die_with_parent``).
 
+The scenario's process faults (``kill_agent``, ``hang_agent``, ``restart_agent``, ``kill_server``)
+are done here, at sim time, to the real processes, and logged to ``events.jsonl``
+(``FaultInjector``); see docs/distributed-runtime.md, "Faults done to processes".
+
 No Zenoh session is opened here: the sim server is the Zenoh router the agents connect to.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
+import subprocess
 import sys
 import threading
 import time
 import uuid
 from contextlib import contextmanager
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from swarm.acl import write_credentials
+from swarm.faults import add_fault_results
 from swarm.procs import Supervisor, free_tcp_port
 from swarm.results import prepare_results_dir, read_trajectory, summarize, write_metrics
 from swarm.scenario import Scenario, ScenarioError, parse_scenario, resolve_model_path
 
 AGENTS_EXIT_GRACE_S = 5.0
-"""How long the agents get to notice that the sim has gone and exit by themselves."""
+"""How long the agents get to notice that the sim has gone and exit by themselves (plus
+``sim.server_lost_s`` when the server did not end the run itself)."""
+
+FAULT_POLL_S = 0.005
+"""How often the runner looks at the trajectory while a process fault is still to come."""
 
 
 class RunFailed(ScenarioError):
@@ -105,29 +118,196 @@ def _read_json(path: Path) -> dict:
         return {}
 
 
+PROCESS_FAULTS = ("kill_agent", "hang_agent", "restart_agent", "kill_server")
+"""Fault kinds the runner does to the processes themselves (the link faults act in the agents)."""
+
+
+@dataclass(order=True)
+class _Action:
+    """One thing the fault injector does at a sim time: a fault or the end of a hang."""
+
+    at_s: float  # sim time to act at
+    order: int  # scenario order among actions at the same time
+    kind: str = field(compare=False)  # a PROCESS_FAULTS kind or "resume_agent"
+    robot: int | None = field(compare=False)
+
+
+class FaultInjector:
+    """Does the scenario's process faults to the real processes at sim time and appends each one,
+    when done, as a line to ``events.jsonl`` (flushed at once; see ``EVENT_KEYS``).
+
+    The sim time is the runner's view of the server's progress: when ``ticks`` lines of the
+    trajectory are on disk the server is on tick ``ticks``, at ``ticks * control_period_s``; an
+    action due at ``at_s`` is done at the first look at which that time is reached (the ``tick``
+    of its event says when that was). Agent PIDs come from ``logs/agent_<i>.json``, a restarted
+    agent's from the process the injector started.
+    """
+
+    EVENT_KEYS = ("kind", "robot", "at_s", "tick", "wall_s", "detail")
+
+    def __init__(
+        self,
+        scenario: Scenario,
+        out_dir: Path,
+        started_s: float,
+        start_agent,
+    ):
+        self.dt_s = scenario.sim.control_period_s
+        self.logs = out_dir / "logs"
+        self.started_s = started_s
+        self.start_agent = start_agent  # (robot, restart number) -> subprocess.Popen
+        self.actions: list[_Action] = []
+        for order, fault in enumerate(scenario.faults):
+            if fault.kind not in PROCESS_FAULTS:
+                continue
+            at_s = fault.at_s or 0.0
+            self.actions.append(_Action(at_s, order, fault.kind, fault.robot))
+            if fault.kind == "hang_agent":
+                self.actions.append(_Action(at_s + fault.duration_s, order, "resume_agent", fault.robot))
+        self.actions.sort()
+        self.server_pid: int | None = None
+        self.server_killed_tick: int | None = None
+        self.pids: dict[int, int] = {}  # robot -> pid of its agent process now
+        self.stopped: set[int] = set()  # robots whose agent is SIGSTOPped
+        self.restarted: list = []  # processes started by restart_agent
+        self.events: list[dict] = []
+        self._file = open(out_dir / "events.jsonl", "w", buffering=1)  # noqa: SIM115 (closed by close)
+
+    @property
+    def pending(self) -> bool:
+        return bool(self.actions)
+
+    def close(self) -> None:
+        self._file.close()
+
+    def _event(self, kind: str, robot: int | None, at_s: float, tick: int, detail: str, **extra) -> None:
+        event = {
+            "kind": kind,
+            "robot": robot,
+            "at_s": round(at_s, 9),
+            "tick": tick,
+            "wall_s": round(time.perf_counter() - self.started_s, 4),
+            "detail": detail,
+            **extra,
+        }
+        self.events.append(event)
+        self._file.write(json.dumps(event, separators=(",", ":")) + "\n")
+        self._file.flush()
+
+    def _pid(self, robot: int) -> int | None:
+        if robot not in self.pids:
+            pid = _read_json(self.logs / f"agent_{robot}.json").get("pid")
+            if isinstance(pid, int):
+                self.pids[robot] = pid
+        return self.pids.get(robot)
+
+    def _signal(self, robot: int, sig: int) -> tuple[int | None, str]:
+        """Send ``sig`` to robot's agent; (its pid, what happened)."""
+        pid = self._pid(robot)
+        if pid is None:
+            return None, f"no pid of robot {robot}'s agent (no logs/agent_{robot}.json)"
+        try:
+            os.kill(pid, sig)
+        except ProcessLookupError:
+            return pid, f"pid {pid} had already ended"
+        return pid, f"{signal.Signals(sig).name} to pid {pid}"
+
+    def step(self, ticks: int) -> None:
+        """Do every action due when ``ticks`` trajectory lines are on disk."""
+        now_s = ticks * self.dt_s
+        while self.actions and self.actions[0].at_s <= now_s + 1e-9:
+            action = self.actions.pop(0)
+            self._do(action, ticks)
+
+    def _do(self, action: _Action, tick: int) -> None:
+        kind, robot, at_s = action.kind, action.robot, action.at_s
+        if kind == "kill_server":
+            detail = "the server's pid is unknown"
+            if self.server_pid is not None:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(self.server_pid, signal.SIGKILL)
+                    self.server_killed_tick = tick
+                detail = f"SIGKILL to the sim server, pid {self.server_pid}"
+            self._event(kind, None, at_s, tick, detail)
+        elif kind == "kill_agent":
+            pid, detail = self._signal(robot, signal.SIGKILL)
+            self.stopped.discard(robot)
+            self._event(kind, robot, at_s, tick, detail, pid=pid)
+        elif kind == "hang_agent":
+            pid, detail = self._signal(robot, signal.SIGSTOP)
+            self.stopped.add(robot)
+            self._event(kind, robot, at_s, tick, detail, pid=pid)
+        elif kind == "resume_agent":
+            pid, detail = self._signal(robot, signal.SIGCONT)
+            self.stopped.discard(robot)
+            self._event(kind, robot, at_s, tick, detail, pid=pid)
+        elif kind == "restart_agent":
+            old_pid, killed = self._signal(robot, signal.SIGKILL)
+            self.stopped.discard(robot)
+            record = self.logs / f"agent_{robot}.json"
+            if record.exists() and old_pid is not None:  # keep the killed agent's record
+                (self.logs / "replaced").mkdir(exist_ok=True)
+                os.replace(record, self.logs / "replaced" / f"agent_{robot}_pid{old_pid}.json")
+            process = self.start_agent(robot, len(self.restarted) + 1)
+            self.restarted.append(process)
+            self.pids[robot] = process.pid
+            detail = f"{killed}; new agent pid {process.pid}"
+            self._event(kind, robot, at_s, tick, detail, pid=process.pid, old_pid=old_pid)
+
+    def finish(self) -> None:
+        """The run is over: continue every agent still stopped, else it could not exit (not an event:
+        the fault lasted until the end of the run)."""
+        for robot in sorted(self.stopped):
+            self._signal(robot, signal.SIGCONT)
+        self.stopped.clear()
+        self.actions.clear()  # faults planned after the end of the run are not done
+
+
+def _check_faults(scenario: Scenario) -> None:
+    for index, fault in enumerate(scenario.faults):
+        where = f"faults[{index}] ({fault.kind})"
+        if fault.kind in PROCESS_FAULTS and fault.kind != "kill_server":
+            if fault.robot is None:
+                raise ScenarioError(f"{where}: needs 'robot'")
+            if scenario.controller.kind == "centralized":
+                raise ScenarioError(
+                    f"{where}: controller.kind 'centralized' runs one process for every robot;"
+                    " agent faults need one process per robot"
+                )
+        if fault.kind == "hang_agent" and fault.duration_s is None:
+            raise ScenarioError(f"{where}: needs 'duration' (sim seconds until the agent continues)")
+
+
 def run_distributed(
     scenario: Scenario, out_dir: Path, scenario_path: Path | None = None, progress: bool = True
 ) -> dict:
-    """Run ``scenario`` as sim server + agent processes; returns the outcome (metrics.json)."""
+    """Run ``scenario`` as sim server + agent processes; returns the outcome (metrics.json).
+
+    Process faults of the scenario are done by a ``FaultInjector``. A ``kill_server`` fault ends
+    the run early: the agents exit by themselves (``sim.server_lost_s``), metrics come from the
+    trajectory so far and the outcome carries ``incomplete`` (the CLI then exits 1).
+    """
     adjacency = scenario.adjacency()
     if adjacency is None:
         raise ScenarioError(
             "topology.kind: 'disk' graphs are not supported by the pybullet engine yet"
             " (use --engine kinematic)"
         )
+    _check_faults(scenario)
     model = None
     if scenario.controller.kind == "gnn":
         model = resolve_model_path(scenario.controller.model, scenario_path).resolve()
         data = scenario.model_dump(mode="json")
         data["controller"]["model"] = str(model)  # the server reads the copy in the results directory
         scenario = parse_scenario(data)
-    if scenario.faults:
-        print("swarm run: note: faults are not injected by the pybullet engine yet", file=sys.stderr)
     out_dir = Path(out_dir)
     prepare_results_dir(out_dir, scenario)
     logs = out_dir / "logs"
-    for stale in [out_dir / "trajectory.jsonl", out_dir / "server_stats.json", *logs.glob("agent_*.json")]:
-        stale.unlink(missing_ok=True)
+    stale = [
+        out_dir / name for name in ("trajectory.jsonl", "server_stats.json", "metrics.json", "events.jsonl")
+    ]
+    for path in [*stale, *logs.glob("agent_*.json"), *logs.glob("replaced/agent_*.json")]:
+        path.unlink(missing_ok=True)
     run_id = _run_id(scenario.name)
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
     count, steps = scenario.robots.count, scenario.steps
@@ -136,6 +316,10 @@ def run_distributed(
     server_cmd += ["--out", str(out_dir), "--run", run_id, "--listen", endpoint, "--die-with-parent"]
     server_cmd += ["--model", str(model)] if model else []
     common = ["--connect", endpoint, "--run", run_id, "--log-dir", str(logs), "--die-with-parent"]
+    if scenario.sim.acl:  # fresh credentials (0600) in the results directory, each agent its own file
+        users, per_robot = write_credentials(out_dir / "credentials", count)
+        server_cmd += ["--users", str(users)]
+        common += ["--credentials", per_robot]
     if scenario.controller.kind == "centralized":
         controller_name, controller_cmd = "central", [python, "-m", "robot_agent.central", *common]
     else:
@@ -151,8 +335,17 @@ def run_distributed(
     started_s, started_unix_s = time.perf_counter(), time.time()
     first_tick_s = None
     with _sigterm_as_interrupt(), Supervisor(env=_child_env()) as supervisor:
+
+        def start_agent(robot: int, number: int):
+            command = [python, "-m", "robot_agent", "--robot", str(robot), *common]
+            return supervisor.start(
+                f"agent_{robot}.restart{number}", command, logs / f"agent_{robot}.restart{number}.log"
+            )
+
+        faults = FaultInjector(scenario, out_dir, started_s, start_agent)
         try:
             server = supervisor.start("sim_server", server_cmd, logs / "sim_server.log")
+            faults.server_pid = server.pid
             controllers = supervisor.start(controller_name, controller_cmd, logs / f"{controller_name}.log")
             while server.poll() is None:
                 done = ticks.update()
@@ -164,25 +357,48 @@ def run_distributed(
                         f"the {controller_name} process exited with status {controllers.returncode} before"
                         f" the first tick: {_tail(log)} (logs in {logs})"
                     )
+                if done:
+                    faults.step(done)
                 if bar is not None:
                     bar.update(done - bar.n)
-                time.sleep(0.05)
+                time.sleep(FAULT_POLL_S if faults.pending else 0.05)
             ticks.update()
-            agents_exit = supervisor.wait(controller_name, AGENTS_EXIT_GRACE_S)
+            faults.finish()
+            server_gone = server.returncode != 0
+            grace_s = AGENTS_EXIT_GRACE_S + (scenario.sim.server_lost_s if server_gone else 0.0)
+            deadline_s = time.perf_counter() + grace_s
+            agents_exit = supervisor.wait(controller_name, grace_s)
+            for process in faults.restarted:
+                with contextlib.suppress(subprocess.TimeoutExpired):
+                    process.wait(max(0.0, deadline_s - time.perf_counter()))
         finally:
+            faults.close()
             if bar is not None:
                 bar.close()
     wall_s = time.perf_counter() - started_s
+    killed_by_fault = faults.server_killed_tick is not None
+    incomplete = None
     if server.returncode != 0:
-        raise RunFailed(
+        failure = (
             f"sim server exited with status {server.returncode}: {_tail(logs / 'sim_server.log')}"
             f" (logs in {logs})"
         )
+        if not killed_by_fault:
+            _write_partial_metrics(scenario, out_dir, adjacency, f"the run failed: {failure}")
+            raise RunFailed(failure)
+        incomplete = (
+            f"the sim server was killed by a kill_server fault at tick {faults.server_killed_tick}"
+            f" of {steps}; metrics from the {ticks.lines} ticks before"
+        )
     times_s, poses, _ = read_trajectory(out_dir / "trajectory.jsonl")
-    if len(times_s) != steps + 1:
+    if not len(times_s):
+        raise RunFailed(f"no tick in the trajectory (logs in {logs})")
+    if len(times_s) != steps + 1 and incomplete is None:
         raise RunFailed(f"trajectory has {len(times_s)} of {steps + 1} ticks (logs in {logs})")
 
     outcome = summarize(scenario, times_s, poses, adjacency)
+    if incomplete is not None:
+        outcome.update(incomplete=incomplete, ticks_planned=steps)
     records = {int(path.stem.split("_")[1]): _read_json(path) for path in sorted(logs.glob("agent_*.json"))}
     stats = _read_json(out_dir / "server_stats.json")
     outcome["processes"] = {
@@ -190,16 +406,32 @@ def run_distributed(
         f"{controller_name}_pid": controllers.pid,
         "agent_pids": {str(i): record.get("pid") for i, record in sorted(records.items())},
         "agents_exit_status": agents_exit,
+        "restarted_agents_exit_status": [process.poll() for process in faults.restarted],
         "killed_process_groups": len(supervisor.killed),
     }
     outcome["runtime"] = runtime_summary(scenario, stats, records, endpoint, wall_s, first_tick_s)
     if stats.get("agents_ready_unix_s") is not None:
         outcome["runtime"]["agents_ready_s"] = round(stats["agents_ready_unix_s"] - started_unix_s, 3)
+    if scenario.faults:  # judged on the live robots and graph at the end (swarm.faults)
+        add_fault_results(outcome, scenario, out_dir, records, times_s, poses)
     write_metrics(out_dir, outcome)
     from swarm.runner import write_pictures
 
     write_pictures(out_dir, scenario, times_s, poses, outcome)
     return outcome
+
+
+def _write_partial_metrics(scenario: Scenario, out_dir: Path, adjacency: np.ndarray, why: str) -> None:
+    """metrics.json and plots from whatever trajectory is on disk, marked ``incomplete``."""
+    times_s, poses, _ = read_trajectory(out_dir / "trajectory.jsonl")
+    if not len(times_s):
+        return
+    outcome = summarize(scenario, times_s, poses, adjacency)
+    outcome.update(incomplete=why, ticks_planned=scenario.steps)
+    write_metrics(out_dir, outcome)
+    from swarm.runner import write_pictures
+
+    write_pictures(out_dir, scenario, times_s, poses, outcome)
 
 
 def runtime_summary(
@@ -227,5 +459,30 @@ def runtime_summary(
         "messages_lost": int(np.sum([m.get("lost", 0) for m in messages])),
         "messages_invalid": int(np.sum([m.get("invalid", 0) for m in messages])),
         "invalid_commands": stats.get("invalid_commands"),
+        "rejected": rejected_counts(stats, records),
+        "access_control": scenario.sim.acl,
         "agent_exit_reasons": sorted({str(record.get("exit_reason")) for record in records.values()}),
+    }
+
+
+def rejected_counts(stats: dict, records: dict[int, dict]) -> dict:
+    """Samples dropped on receipt, per stream: ``invalid`` (did not decode: swarm.wire) and ``old``
+    (tick not newer than the newest accepted from that sender); and exceptions caught in callbacks."""
+
+    def total(stream: str, kind: str) -> int:
+        return sum(int(record.get(stream, {}).get(kind, 0)) for record in records.values())
+
+    return {
+        "invalid": {
+            "poses": total("poses", "invalid"),
+            "messages": total("messages", "invalid"),
+            "commands": int(stats.get("invalid_commands", 0)),
+        },
+        "old": {
+            "poses": total("poses", "old"),
+            "messages": total("messages", "old"),
+            "commands": int(stats.get("old_commands", 0)),
+        },
+        "callback_errors": int(stats.get("callback_errors", 0))
+        + sum(int(record.get("callback_errors", 0)) for record in records.values()),
     }

@@ -102,6 +102,7 @@ class FeatureController:
         features_local, phi_world = batched_features(poses, points, inbox, heard, self.spec)
         u_local = saturate_local_velocity(self.forward(features_local), self.robot)
         u_world = rotate(u_local, poses[..., 2])
+        u_world[heard.heard_count() <= 0] = 0.0  # a robot that heard nobody holds still
         return u_world, messages(points, phi_world, u_world, self.spec)
 
     def act_one(
@@ -114,6 +115,8 @@ class FeatureController:
         features_local, phi_world = robot_features(pose, point, neighbour_messages, self.spec, count)
         u_local = saturate_local_velocity(self.forward(features_local), self.robot)
         u_world = rotate(u_local, pose[2])
+        if np.size(neighbour_messages) == 0:  # heard nobody: holds still, as the batched ``act``
+            u_world = np.zeros_like(u_world)
         return u_world, messages(point, phi_world, u_world, self.spec)
 
 

@@ -63,6 +63,7 @@ def stop_groups(pgids: Iterable[int], grace_s: float = 3.0, reap: object = None)
     """
     pgids = list(pgids)
     signal_groups(pgids, signal.SIGTERM)
+    signal_groups(pgids, signal.SIGCONT)  # a stopped process (a hang_agent fault) must run to exit
     deadline = time.monotonic() + grace_s
     while time.monotonic() < deadline:
         if callable(reap):

@@ -13,6 +13,7 @@ Layout::
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 from pathlib import Path
@@ -54,17 +55,29 @@ def prepare_results_dir(out_dir: Path, scenario: Scenario) -> Path:
     return out_dir
 
 
-def read_trajectory(path: Path) -> tuple[np.ndarray, np.ndarray, list[dict]]:
-    """Times ``(T,)`` and poses ``(T, N, 3)`` from a trajectory file; a torn last line is skipped."""
+def read_jsonl(path: Path) -> list[dict]:
+    """The records of a JSON-lines file written as it happened: a torn last line (the writer was
+    killed mid-line) and everything after it are skipped."""
     records = []
-    with open(path) as file:
+    with open(path, errors="replace") as file:
         for line in file:
             try:
-                records.append(json.loads(line))
+                record = json.loads(line)
             except json.JSONDecodeError:
                 break
+            if not isinstance(record, dict):
+                break
+            records.append(record)
+    return records
+
+
+def read_trajectory(path: Path) -> tuple[np.ndarray, np.ndarray, list[dict]]:
+    """Times ``(T,)`` and poses ``(T, N, 3)`` from a trajectory file; a torn last line is skipped."""
+    records = [r for r in read_jsonl(path) if "time_s" in r and "poses" in r]
     times = np.array([record["time_s"] for record in records], dtype=float)
     poses = np.array([record["poses"] for record in records], dtype=float)
+    if not records:
+        poses = poses.reshape(0, 0, 3)
     return times, poses, records
 
 
@@ -113,3 +126,57 @@ def summarize(
 
 def write_metrics(out_dir: Path, outcome: dict) -> None:
     (out_dir / "metrics.json").write_text(json.dumps(outcome, indent=2) + "\n")
+
+
+def report(out_dir: Path) -> dict:
+    """Re-create ``metrics.json``, ``convergence.png`` and ``animation.gif`` from what a run left on
+    disk, however it ended (``swarm report RUN_DIR``): the scenario, the trajectory up to its last
+    complete line, and ``events.jsonl`` when there is one. Keys of an earlier ``metrics.json`` that
+    the trajectory cannot give (``processes``, ``runtime``, ...) are kept. Raises ``ScenarioError``
+    with one line when the directory cannot be read."""
+    from swarm.scenario import ScenarioError, load_scenario
+
+    out_dir = Path(out_dir)
+    if not out_dir.is_dir():
+        raise ScenarioError(f"{out_dir}: no such results directory")
+    scenario = load_scenario(out_dir / "scenario.yaml")
+    path = out_dir / "trajectory.jsonl"
+    try:
+        times_s, poses, _ = read_trajectory(path)
+    except FileNotFoundError:
+        raise ScenarioError(f"{path}: no trajectory (the run ended before its first tick)") from None
+    except ValueError as error:
+        raise ScenarioError(f"{path}: unreadable poses: {error}") from None
+    count = scenario.robots.count
+    if not len(times_s):
+        raise ScenarioError(f"{path}: no complete tick (the run ended before its first tick)")
+    if poses.shape[1] != count:
+        raise ScenarioError(f"{path}: poses of {poses.shape[1]} robots but the scenario has {count}")
+    adjacency = scenario.adjacency()
+    if adjacency is None:
+        adjacency = graphs.disk(poses[-1, :, :2], scenario.topology.radius_m)
+    outcome = summarize(scenario, times_s, poses, adjacency)
+    try:
+        previous = json.loads((out_dir / "metrics.json").read_text())
+    except (OSError, ValueError):
+        previous = {}
+    if not isinstance(previous, dict):
+        previous = {}
+    outcome = {**previous, **outcome}
+    steps = scenario.steps
+    if len(times_s) < steps + 1:
+        outcome.setdefault("incomplete", f"the trajectory has {len(times_s)} of {steps + 1} ticks")
+        outcome["ticks_planned"] = steps
+    if scenario.faults:  # judged on the live robots, from events.jsonl and the agents' records
+        from swarm.faults import add_fault_results
+
+        records = {}
+        for record_path in (out_dir / "logs").glob("agent_*.json"):
+            with contextlib.suppress(OSError, ValueError, IndexError):
+                records[int(record_path.stem.split("_")[1])] = json.loads(record_path.read_text())
+        add_fault_results(outcome, scenario, out_dir, records, times_s, poses)
+    write_metrics(out_dir, outcome)
+    from swarm.runner import write_pictures
+
+    write_pictures(out_dir, scenario, times_s, poses, outcome)
+    return outcome

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from swarm.controllers import BatchedController, Centralized, LocalConsensus
+from swarm.faults import PROCESS_FAULTS, LinkFaults, add_fault_results, message_max_age_ticks
 from swarm.kinematic import KinematicSim
 from swarm.results import TrajectoryWriter, prepare_results_dir, summarize, write_metrics
 from swarm.scenario import Scenario, ScenarioError
@@ -38,7 +39,14 @@ def build_controller(scenario: Scenario, scenario_path: Path | None = None) -> B
 def run_kinematic(
     scenario: Scenario, out_dir: Path, scenario_path: Path | None = None, progress: bool = True
 ) -> dict:
-    """Run on the kinematic engine, streaming the trajectory; returns the outcome (metrics.json)."""
+    """Run on the kinematic engine, streaming the trajectory; returns the outcome (metrics.json).
+    Link faults apply as in the agents (``swarm.faults``); process faults need the pybullet engine."""
+    for index, fault in enumerate(scenario.faults):
+        if fault.kind in PROCESS_FAULTS:
+            raise ScenarioError(
+                f"faults[{index}].kind: {fault.kind} needs the pybullet engine (the kinematic engine runs"
+                " no processes)"
+            )
     controller = build_controller(scenario, scenario_path)
     adjacency = scenario.adjacency()
     sim = KinematicSim(
@@ -48,8 +56,11 @@ def run_kinematic(
         scenario.initial_poses()[None],
         adjacency=adjacency,
         disk_radius_m=scenario.topology.radius_m if adjacency is None else None,
+        link_faults=LinkFaults.from_scenario(scenario) if scenario.faults else None,
+        message_max_age_ticks=message_max_age_ticks(scenario.sim),
     )
     prepare_results_dir(out_dir, scenario)
+    (out_dir / "events.jsonl").unlink(missing_ok=True)  # process faults of an earlier run there
     steps = scenario.steps
     times = np.arange(steps + 1) * scenario.sim.control_period_s
     poses = np.empty((steps + 1, scenario.robots.count, 3))
@@ -66,6 +77,8 @@ def run_kinematic(
                 sim.step()
     final_adjacency = sim.adjacency()[0]
     outcome = summarize(scenario, times, poses, final_adjacency)
+    if scenario.faults:
+        add_fault_results(outcome, scenario, out_dir, {}, times, poses, message_counts=sim.fault_counts)
     write_metrics(out_dir, outcome)
     write_pictures(out_dir, scenario, times, poses, outcome)
     return outcome

@@ -139,9 +139,62 @@ class SimSpec(_Strict):
         validation_alias=AliasChoices("watchdog_s", "watchdog"),
         description="a robot whose commands stop for this long (sim time in lockstep) is stopped",
     )
+    server_lost_s: float = Field(
+        5.0,
+        ge=0,
+        validation_alias=AliasChoices("server_lost_s", "server_lost"),
+        description="how long an agent waits for the sim's liveliness token to come back (a network"
+        " partition, a frozen agent) before it takes the sim as gone and exits",
+    )
+    message_max_age_ticks: int | None = Field(
+        None,
+        ge=1,
+        description="a neighbour message is usable while its age beyond the link's delay is at most this"
+        " many ticks (None: 1 in lockstep, only the message of tick k-1-delay; 10 in realtime); see"
+        " swarm/faults.py",
+    )
+    acl: bool = Field(
+        False,
+        description="pybullet engine: enforce the decentralization with Zenoh access control (swarm/acl.py):"
+        " the sim server's router admits only agents with the run's credentials, each to its own pose,"
+        " command and token and its graph neighbours' messages and tokens",
+    )
+
+
+FAULT_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
+    # kind: (required keys, optional keys); every other fault key is refused for that kind
+    "drop_link": (("at", "link"), ("direction",)),
+    "restore_link": (("at", "link"), ("direction",)),
+    "packet_loss": (("p",), ("link", "direction", "at", "until")),
+    "delay": (("ticks",), ("link", "direction", "at", "until")),
+    "kill_agent": (("at", "robot"), ()),
+    "restart_agent": (("at", "robot"), ()),
+    "hang_agent": (("at", "robot", "duration"), ()),
+    "kill_server": (("at",), ()),
+}
+"""Which keys each fault kind takes (README, "Faults"); keys by their short names."""
+
+_FAULT_KEY_NAMES = {
+    "at": ("at", "at_s"),
+    "until": ("until", "until_s"),
+    "duration": ("duration", "duration_s"),
+}
+
+
+class KeyedError(ValueError):
+    """A validation error about one key below the model that raises it: ``describe_validation_error``
+    names ``key`` after the model's location (``faults[2].link: ...``)."""
+
+    def __init__(self, key: tuple[str | int, ...], message: str):
+        super().__init__(message)
+        self.key = key
 
 
 class FaultSpec(_Strict):
+    """One fault (README, "Faults"). Link faults (``drop_link``, ``restore_link``, ``packet_loss``,
+    ``delay``) act in the receiving robots (``swarm.faults``); process faults (``kill_agent``,
+    ``hang_agent``, ``restart_agent``, ``kill_server``) are done by the runner of the pybullet engine."""
+
     kind: Literal[
         "drop_link",
         "restore_link",
@@ -153,10 +206,55 @@ class FaultSpec(_Strict):
         "kill_server",
     ]
     at_s: float | None = Field(None, ge=0, validation_alias=AliasChoices("at_s", "at"))
+    until_s: float | None = Field(None, gt=0, validation_alias=AliasChoices("until_s", "until"))
     link: tuple[int, int] | None = None
+    direction: Literal["both", "one"] | None = Field(
+        None, description="link faults: both (default) or one, only link[1] stops hearing link[0]"
+    )
     p: float | None = Field(None, ge=0, le=1)
+    ticks: int | None = Field(
+        None, ge=1, description="delay: extra ticks of age of the newest usable message"
+    )
     robot: int | None = Field(None, ge=0)
     duration_s: float | None = Field(None, gt=0, validation_alias=AliasChoices("duration_s", "duration"))
+
+    @model_validator(mode="before")
+    @classmethod
+    def _keys_of_kind(cls, data: object) -> object:
+        """Required and refused keys per kind, named as written (a null value counts as absent)."""
+        if not isinstance(data, dict) or data.get("kind") not in FAULT_KEYS:
+            return data
+        kind = data["kind"]
+        required, optional = FAULT_KEYS[kind]
+        given = {}
+        for key, value in data.items():
+            if value is None or key == "kind":
+                continue
+            short = next((name for name, spellings in _FAULT_KEY_NAMES.items() if key in spellings), key)
+            given[short] = key
+        for key in required:
+            if key not in given:
+                raise KeyedError((key,), f"required for kind {kind}")
+        for short, written in given.items():
+            if short not in required and short not in optional and short in cls._short_keys():
+                raise KeyedError(
+                    (written,), f"not a key of kind {kind} (it takes {', '.join(required + optional)})"
+                )
+        if "direction" in given and "link" not in given:
+            raise KeyedError((given["direction"],), "needs 'link'")
+        return data
+
+    @staticmethod
+    def _short_keys() -> set[str]:
+        return {"at", "until", "link", "direction", "p", "ticks", "robot", "duration"}
+
+    @model_validator(mode="after")
+    def _consistent(self) -> FaultSpec:
+        if self.link is not None and self.link[0] == self.link[1]:
+            raise KeyedError(("link",), f"a link joins two different robots, got {list(self.link)}")
+        if self.until_s is not None and self.until_s <= (self.at_s or 0.0):
+            raise KeyedError(("until",), f"must be after 'at' ({self.at_s or 0.0:g} s), got {self.until_s:g}")
+        return self
 
 
 class EngineThresholds(_Strict):
@@ -194,6 +292,9 @@ class Scenario(_Strict):
     controller: ControllerSpec = Field(default_factory=ControllerSpec)
     sim: SimSpec = Field(default_factory=SimSpec)
     faults: list[FaultSpec] = Field(default_factory=list)
+    faults_seed: int = Field(
+        0, ge=0, description="seed of the packet-loss draws (swarm/faults.py): same seed, same packets lost"
+    )
     success: SuccessSpec = Field(default_factory=SuccessSpec)
 
     @model_validator(mode="after")
@@ -208,11 +309,56 @@ class Scenario(_Strict):
                 f"topology.adjacency is {len(self.topology.adjacency)}x{len(self.topology.adjacency)}"
                 f" but robots.count is {count}"
             )
-        for index, fault in enumerate(self.faults):
-            for robot in [*(fault.link or ()), *([fault.robot] if fault.robot is not None else [])]:
-                if robot >= count:
-                    raise ValueError(f"faults[{index}] names robot {robot} but robots.count is {count}")
+        self._check_faults()
+        if self.sim.acl and self.controller.kind == "centralized":
+            raise KeyedError(
+                ("sim", "acl"), "the centralized controller needs every pose; access control is per robot"
+            )
+        if self.sim.acl and self.topology.kind == "disk":
+            raise KeyedError(("sim", "acl"), "access control needs a fixed graph, not a disk topology")
         return self
+
+    def _check_faults(self) -> None:
+        """Faults name robots of this run and edges of its graph; a restore follows a drop. (Process
+        faults on the kinematic engine are refused when it starts: ``swarm.runner``.)"""
+        count = self.robots.count
+        adjacency = None
+        if any(fault.link is not None for fault in self.faults):
+            try:
+                adjacency = self.adjacency()
+            except ValueError:
+                adjacency = None  # load_scenario reports the topology itself
+        down: set[tuple[int, int]] = set()  # directed links dropped so far, in time order
+        order = sorted(range(len(self.faults)), key=lambda i: (self.faults[i].at_s or 0.0, i))
+        for index in order:
+            fault = self.faults[index]
+            if fault.robot is not None and fault.robot >= count:
+                raise KeyedError(
+                    ("faults", index, "robot"), f"robot {fault.robot} but robots.count is {count}"
+                )
+            if fault.link is None:
+                pass
+            elif max(fault.link) >= count:
+                raise KeyedError(
+                    ("faults", index, "link"), f"names robot {max(fault.link)} but robots.count is {count}"
+                )
+            elif adjacency is not None and not adjacency[fault.link[0], fault.link[1]]:
+                raise KeyedError(
+                    ("faults", index, "link"),
+                    f"{list(fault.link)} is not an edge of the {self.topology.kind} graph",
+                )
+            if fault.kind in ("drop_link", "restore_link"):
+                i, j = fault.link
+                pairs = {(i, j)} if fault.direction == "one" else {(i, j), (j, i)}
+                if fault.kind == "drop_link":
+                    down |= pairs
+                elif not pairs & down:
+                    raise KeyedError(
+                        ("faults", index, "link"),
+                        f"restore_link of {list(fault.link)}, which no earlier drop_link dropped",
+                    )
+                else:
+                    down -= pairs
 
     @property
     def threshold(self) -> float:
@@ -274,6 +420,9 @@ def describe_validation_error(error: ValidationError) -> str:
     first = errors[0]
     loc = tuple(part for part in first["loc"] if not (isinstance(part, str) and part.startswith("function-")))
     message = first["msg"].removeprefix("Value error, ")
+    keyed = (first.get("ctx") or {}).get("error")
+    if isinstance(keyed, KeyedError):  # an error about a key below the model that raised it
+        loc = (*loc, *keyed.key)
     if first["type"] == "extra_forbidden":
         message = "unknown key"
     elif first["type"] == "missing":

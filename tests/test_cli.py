@@ -189,7 +189,8 @@ def test_usage_errors_exit_2(capsys, argv):
     with pytest.raises(SystemExit) as exit_info:
         main(argv)
     assert exit_info.value.code == 2
-    assert "usage: swarm" in capsys.readouterr().err
+    lines = capsys.readouterr().err.splitlines()  # one line, not the whole usage
+    assert len(lines) == 1 and lines[0].startswith("swarm") and "error:" in lines[0] and "--help" in lines[0]
 
 
 def installed_console_script() -> str:

@@ -229,6 +229,14 @@ def test_weak_scenarios_are_the_two_triangles():
             assert not graphs.is_connected(load_scenario(path).adjacency())
 
 
+ALL_SCENARIOS = sorted((PROJECT_ROOT / "scenarios").rglob("*.yaml"))
+
+
+@pytest.mark.parametrize("path", ALL_SCENARIOS, ids=lambda path: path.relative_to(PROJECT_ROOT).as_posix())
+def test_every_scenario_file_loads(path):
+    load_scenario(path)  # raises ScenarioError, naming the key, for a bad one
+
+
 # ---------------------------------------------------------------- initial poses and graphs
 
 

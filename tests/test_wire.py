@@ -241,3 +241,100 @@ def test_config_without_a_field_is_rejected():
         if key not in ("v", "policy"):
             partial = {k: v for k, v in body.items() if k != key}
             assert wire.decode_config(packed(partial)) is None, key
+
+
+# ----------------------------------------------------------------------------- seeded garbage
+
+
+def _accepted_value_is_sane(decoded: object) -> bool:
+    """What a decoder lets through is within the wire's bounds, whatever the input was."""
+    if isinstance(decoded, wire.Pose):
+        values = (decoded.time_s, decoded.x_m, decoded.y_m, decoded.theta_rad)
+        bounds = (wire.MAX_TIME_S, wire.MAX_COORD_M, wire.MAX_COORD_M, wire.MAX_ANGLE_RAD)
+        return 0 <= decoded.tick <= wire.MAX_TICK and decoded.time_s >= 0 and all(
+            math.isfinite(v) and abs(v) <= bound for v, bound in zip(values, bounds, strict=True)
+        )
+    if isinstance(decoded, wire.Command):
+        return 0 <= decoded.tick <= wire.MAX_TICK and all(
+            math.isfinite(v) and abs(v) <= wire.MAX_WHEEL_MPS for v in (decoded.left_mps, decoded.right_mps)
+        )
+    if isinstance(decoded, wire.AgentMessage):
+        return (
+            0 <= decoded.tick <= wire.MAX_TICK
+            and decoded.values.size <= wire.MAX_MESSAGE_DIM
+            and bool(np.all(np.abs(decoded.values) <= wire.MAX_MESSAGE_ABS))
+        )
+    return isinstance(decoded, wire.AgentConfig)
+
+
+def _mutate(rng: np.random.Generator, data: bytes) -> bytes:
+    """Flip, overwrite, cut, duplicate or insert bytes of a valid sample."""
+    buffer = bytearray(data)
+    how = rng.integers(5)
+    if how == 0 and buffer:
+        position = rng.integers(len(buffer))
+        buffer[position] ^= 1 << int(rng.integers(8))
+    elif how == 1 and buffer:
+        position = rng.integers(len(buffer))
+        buffer[position] = int(rng.integers(256))
+    elif how == 2:
+        buffer = buffer[: rng.integers(len(buffer) + 1)]
+    elif how == 3:
+        buffer += buffer[rng.integers(len(buffer) + 1) :]
+    else:
+        position = rng.integers(len(buffer) + 1)
+        buffer[position:position] = rng.bytes(int(rng.integers(1, 9)))
+    return bytes(buffer)
+
+
+def test_seeded_garbage_never_raises_and_what_passes_is_sane():
+    """10,000 random byte strings and 10,000 mutations of valid samples (seeded): every decoder returns
+    None or a value within the wire's bounds; none raises."""
+    rng = np.random.default_rng(20240511)
+    valid = [
+        wire.encode_pose(12, 0.6, (1.0, -2.0, 0.5)),
+        wire.encode_command(12, (0.2, -0.1)),
+        wire.encode_message(12, (0.25, -1.5)),
+        wire.encode_message(12, np.linspace(-1, 1, 80)),
+        wire.encode_config(a_config()),
+    ]
+    accepted = 0
+    for index in range(20_000):
+        if index % 2:
+            data = rng.bytes(int(rng.integers(0, 120)))
+        else:
+            data = valid[index // 2 % len(valid)]
+            for _ in range(int(rng.integers(1, 4))):
+                data = _mutate(rng, data)
+        for decode in DECODERS:
+            decoded = decode(data)
+            if decoded is not None:
+                accepted += 1
+                assert _accepted_value_is_sane(decoded), (decode.__name__, data)
+        assert wire.decode_message(data, dim=2) is None or wire.decode_message(data, dim=2).values.size == 2
+    assert accepted > 0  # some mutations (a changed digit of a float) stay valid: the check saw them
+
+
+def test_guarded_callbacks_count_errors_and_never_raise(capsys):
+    stats: dict = {}
+    seen = []
+
+    def callback(sample: object) -> None:
+        seen.append(sample)
+        if sample == "bad":
+            raise KeyError("no such field")
+
+    guarded = wire.guarded(callback, stats, "test")
+    for sample in ["ok", "bad", "ok", *["bad"] * 10]:
+        guarded(sample)  # never raises
+    assert len(seen) == 13 and stats["callback_errors"] == 11
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == wire.CALLBACK_ERRORS_PRINTED  # the first few, one line each
+    assert lines[0] == "test: callback error: KeyError: 'no such field'"
+
+
+def test_session_config_takes_more_settings():
+    config = wire.session_config(
+        "client", ["tcp/127.0.0.1:7000"], settings={"transport/auth/usrpwd": {"user": "u", "password": "p"}}
+    )
+    assert json.loads(config.get_json("transport/auth/usrpwd/user")) == "u"
