@@ -146,11 +146,14 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
     limits = {}
     for item in args.limit or []:
+        *topology, count_text, starts_text = item.split(":")
         try:
-            count, starts = (int(part) for part in item.split(":"))
+            count, starts = int(count_text), int(starts_text)
         except ValueError:
-            raise UsageError(f"--limit: expected N:STARTS, got {item!r}") from None
-        limits[count] = starts
+            raise UsageError(f"--limit: expected N:STARTS or TOPOLOGY:N:STARTS, got {item!r}") from None
+        if len(topology) > 1:
+            raise UsageError(f"--limit: expected N:STARTS or TOPOLOGY:N:STARTS, got {item!r}")
+        limits[f"{topology[0]}:{count}" if topology else count] = starts
     if not Path(args.model).is_file():
         raise UsageError(f"{args.model}: no such policy file")
     defaults = EvaluateConfig(model=args.model)
@@ -300,7 +303,10 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument("--sizes", nargs="+", type=int, help="robot counts N (default 6 12 24)")
     evaluate.add_argument("--seeds", type=int, help="random starts per cell (default 1000)")
     evaluate.add_argument(
-        "--limit", action="append", metavar="N:STARTS", help="run only the first STARTS starts at N"
+        "--limit",
+        action="append",
+        metavar="[TOPOLOGY:]N:STARTS",
+        help="run only the first STARTS starts at N (of one topology only, if given)",
     )
     evaluate.add_argument(
         "--max-duration", type=float, help="simulated seconds before a start counts as failed"

@@ -5,7 +5,8 @@ local-consensus and centralized cells are shared with ``swarm sweep`` run with t
 (``--reuse`` reads another results directory's cells, e.g. ``docs/results/consensus_sweep``); the
 model's cells are cached under the policy file's hash. ``--limit N:STARTS`` runs only the first
 STARTS starts at N (every controller; cached full cells are cut to those starts), for sizes where
-the full count is too slow. Writes ``evaluation.csv`` / ``.md`` (the ratio to local consensus is
+the full count is too slow; ``--limit TOPOLOGY:N:STARTS`` does so for one topology only. Writes
+``evaluation.csv`` / ``.md`` (the ratio to local consensus is
 the median over starts of the per-start time ratio, on starts where both converged), the sweep
 plots, ``max_pairwise`` over time (median and 10-90 % band over starts, one figure per N of
 ``curve_sizes``, as the thesis's Figures 4.2-4.6) and, on disk graphs, how often the
@@ -45,7 +46,7 @@ class EvaluateConfig:
     topologies: list[str] = field(default_factory=lambda: ["complete", "cycle", "line", "star", "random"])
     sizes: list[int] = field(default_factory=lambda: [6, 12, 24])
     seeds: int = 1000
-    limits: dict[int, int] = field(default_factory=dict)  # N -> first starts to run
+    limits: dict[int | str, int] = field(default_factory=dict)  # N or "topology:N" -> first starts
     max_duration_s: float = 20_000.0
     reuse: list[str] = field(default_factory=list)
     curve_sizes: list[int] = field(default_factory=lambda: [6, 24])
@@ -54,8 +55,8 @@ class EvaluateConfig:
     workers: int = 1  # processes a cell's starts are split over
 
 
-def sweep_config(config: EvaluateConfig, count: int) -> SweepConfig:
-    limit = config.limits.get(count)
+def sweep_config(config: EvaluateConfig, count: int, topology: str | None = None) -> SweepConfig:
+    limit = config.limits.get(f"{topology}:{count}", config.limits.get(count))
     return SweepConfig(
         topologies=config.topologies,
         sizes=[count],
@@ -72,7 +73,7 @@ def evaluation_cell(
     config: EvaluateConfig, topology: str, count: int, controller: str, on_progress=None
 ) -> dict:
     """A cell from the cache (a full cell cut to ``first_starts`` if that is all there is) or run."""
-    sweep = sweep_config(config, count)
+    sweep = sweep_config(config, count, topology)
     out, reuse = Path(config.out), tuple(Path(d) for d in config.reuse)
     if sweep.first_starts is not None:
         full = find_cached_cell(out, replace(sweep, first_starts=None), topology, count, controller, reuse)

@@ -92,6 +92,13 @@ def test_evaluate_tiny_grid_shares_cells_with_sweep(tmp_path, capsys):
     full = np.load(next((out / "cells").glob("cycle_4_gnn-*.npz")))["times_s"]
     config = SweepConfig(seeds=6, first_starts=3, controllers=["gnn"], model=str(DEFAULT_MODEL))
     np.testing.assert_allclose(run_cell(config, "cycle", 4, "gnn")["times_s"], full[:3])  # same starts
+    # a limit for one topology leaves the others whole
+    argv[argv.index("4:3")] = "disk:4:3"
+    argv[argv.index("--topologies") + 1 : argv.index("--topologies") + 2] = ["cycle", "disk"]
+    argv[argv.index(str(limited))] = str(tmp_path / "per_topology")
+    assert main(argv) == 0
+    rows = list(csv.DictReader((tmp_path / "per_topology" / "evaluation.csv").open()))
+    assert {(r["topology"], r["starts"]) for r in rows} == {("cycle", "6"), ("disk", "3")}
     assert main(["evaluate", str(tmp_path / "none.npz"), "--out", str(tmp_path / "x")]) == 2
     assert len(capsys.readouterr().err.strip().splitlines()) == 1
 
