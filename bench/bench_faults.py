@@ -8,7 +8,8 @@ controller (the shipped GNN, local consensus) it runs the same start four times 
 - ``drop``: links dropped for the whole run while the graph stays connected: up to a fifth of the
   edges (at least one), each removed both ways when the graph stays connected without it; a tree
   (line, star) has no such edge, so one edge is dropped one way (its second robot stops hearing the
-  first; information still flows the other way, so consensus remains possible);
+  first, chosen so that it still hears another neighbour; information still flows the other way, so
+  consensus remains possible);
 - ``loss 0.2`` and ``loss 0.5``: every message lost with that probability (``packet_loss`` on every
   link, ``faults_seed`` 0).
 
@@ -92,9 +93,10 @@ def dropped_links(adjacency: np.ndarray) -> list[dict]:
             faults.append({"at": 0.0, "kind": "drop_link", "link": [i, j]})
             if len(faults) == wanted:
                 break
-    if not faults:  # a tree: one edge one way
+    if not faults:  # a tree: one edge one way, heard no more by an end that still hears someone else
         i, j = edges[int(rng.integers(len(edges)))]
-        faults.append({"at": 0.0, "kind": "drop_link", "link": [i, j], "direction": "one"})
+        sender, receiver = (i, j) if adjacency[j].sum() >= 2 else (j, i)
+        faults.append({"at": 0.0, "kind": "drop_link", "link": [sender, receiver], "direction": "one"})
     return faults
 
 
@@ -268,10 +270,11 @@ NOTES = [
     "",
     "Notes (measured):",
     "",
-    "- star, N = 20, local consensus, `drop`: leaf 15 stops hearing the hub (one way), hears nobody and"
-    " holds still; everyone else should come to it. The kinematic engine converges (0.35 m at 60 s). In"
-    " PyBullet the hub, jammed among 18 leaves that push it, drifts away from leaf 15 (hub at y = 2.9 m"
-    " at 10 s, 12.0 m at 60 s): bodies, not the dropped link, stop this cell.",
+    "- Trees (line, star), `drop`: the one-way drop is chosen so that its receiver still hears another"
+    " neighbour. An earlier run dropped the hub-to-leaf direction on the star, leaving leaf 15 deaf: it"
+    " held still as it must, but in PyBullet the hub, jammed among 18 leaves that pushed it, drifted"
+    " away from it (local consensus, N = 20, not gathered in 60 s; the kinematic engine converged):"
+    " a robot that hears nobody cannot be reached by bodies that jam.",
     "- Below the loose threshold bodies dominate: robots jam, and jams form and break differently"
     " in every run. A faulty run can then be faster (cycle of 6, local consensus, to 0.8 m: 30.05 s"
     " fault-free, 7.10 s with 20% loss: the fault-free jam held 0.77-0.80 m for a long time) or never"
