@@ -4,7 +4,12 @@
 
 from __future__ import annotations
 
-ALGORITHMS: dict[str, str] = {"bc": "swarm.train.bc", "dagger": "swarm.train.dagger", "dqn": "swarm.rl.dqn"}
+ALGORITHMS: dict[str, str] = {
+    "bc": "swarm.train.bc",
+    "dagger": "swarm.train.dagger",
+    "dqn": "swarm.rl.dqn",
+    "ppo": "swarm.train.ppo",
+}
 
 
 def preset_with_overrides(algo: str, presets: dict, preset: str, overrides: dict | None, tuple_fields=()):
