@@ -64,6 +64,9 @@ class Run:
             stderr=subprocess.PIPE,
             text=True,
             cwd=PROJECT_ROOT,
+            # as from a terminal: a suite started in the background (`cmd &`) ignores SIGINT, and an
+            # ignored signal is inherited, so the Ctrl-C test would see nothing
+            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
         )
         self.seen: dict[int, float] = {}  # pid -> create time, of every descendant ever seen
 
