@@ -16,7 +16,7 @@ controller (the shipped GNN, local consensus) it runs the same start four times 
 It reads each run's ``metrics.json`` (converged?, final metric, the messages the agents counted as
 dropped and lost by the faults) and its trajectory: the convergence time of the max pairwise distance
 to two thresholds (``THRESHOLDS_M``), and the slowdown, the convergence time over the fault-free
-run's. Robots have bodies (DESIGN.md, Metrics): the loose threshold is a chain of N touching robots
+run's. Robots have bodies (docs/design.md, "Metrics"): the loose threshold is a chain of N touching robots
 plus 0.1 m (1.3 m for 6 robots, as in scenarios/thesis; 4.66 m for 20), what local consensus on
 sparse graphs jams into; the tight one (0.8 m, 2.0 m) is one compact cluster, which jams may never
 reach. The scenario's ``success`` is the loose threshold.

@@ -1,7 +1,7 @@
 """Kinematic simulator throughput: robot-steps per second (robots x environments x ticks / wall s).
 
 Local consensus (the delayed-information law of swarm.controllers) on fixed cycle and random
-graphs and on disk graphs recomputed every tick, for the batch shapes of issue 2:
+graphs and on disk graphs recomputed every tick, for the batch shapes the learning code uses:
 (B=1, N=1000), (B=1024, N=6) and (B=64, N=100). Target: at least 2e7 robot-steps/s for
 the two batched shapes. Writes bench/results/kinematic.json.
 

@@ -235,7 +235,7 @@ def _fmt(value: object, digits: int = 2) -> str:
 
 
 def targets_met(results: list[dict]) -> dict[str, bool | None]:
-    """Each target of issue 4 against the measured rows (None: not measured)."""
+    """Each runtime target against the measured rows (None: not measured)."""
 
     def row(count: int, mode: str) -> dict | None:
         return next(

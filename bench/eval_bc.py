@@ -2,7 +2,7 @@
 
 Same random starts (box growing with N, headings uniform, 0.4 m apart), graphs and stopping rule
 as ``swarm sweep``; convergence = max_pairwise <= 0.2 m held for 2 s. Reports per (topology, N):
-success rate, median time, median ratio to the lower bound of DESIGN.md, and the median over
+success rate, median time, median ratio to the lower bound of docs/design.md, and the median over
 starts of the time ratio to local consensus. ``--reference`` adds the untrained uniform-weight
 filter (``u = G mean_k f_k``, the same G) to show what the learned hop weights add.
 Writes bench/results/bc_vs_lc.json and .md.

@@ -1,4 +1,4 @@
-"""PPO-tuned GNN against local consensus with a tuned gain, under the speed limit (issue 6).
+"""PPO-tuned GNN against local consensus with a tuned gain, under the speed limit.
 
 For each graph at N robots, from the same random starts as ``swarm sweep`` (the first ``--starts``
 of its 1000 per cell, seed 0), kinematic engine, v_max 0.5 m/s, control period 0.05 s, convergence
@@ -8,7 +8,7 @@ with the gain K tuned for that graph and N (``bench/tune_consensus_gain.py``, re
 (K = 1, complete graph, everyone's current position). Per controller: success rate, median and p90
 time, the ratio of its median to tuned local consensus's median, the median over starts of the
 per-start time ratio to tuned local consensus, and the median per-start ratio to the lower bound
-of DESIGN.md. Targets (issue 6): on sparse graphs the PPO median at most 0.8x tuned local
+of docs/design.md. Targets: on sparse graphs the PPO median at most 0.8x tuned local
 consensus with no loss of success rate; on the complete graph within 1.1x the lower bound.
 Writes ``docs/results/rl/ppo/ppo_vs_tuned_lc.json`` and ``.md``.
 
@@ -166,7 +166,7 @@ def write(rows: list[dict], args: argparse.Namespace, out_dir: Path) -> None:
         f"the first {args.starts} starts of `swarm sweep` per cell (seed 0; random graphs: connected "
         "G(N, p), p = 1.5 ln N / N, one per start). Tuned K: `tuned_lc.md`. t / tuned: ratio of the "
         "medians; per-start: median over starts of the per-start ratio; t / LB: median per-start "
-        "ratio to the lower bound of DESIGN.md.",
+        "ratio to the lower bound of docs/design.md.",
         "",
         "| graph | N | controller | success | median t (s) | p90 t (s) | t / tuned LC | per-start / tuned LC "
         "| t / LB |",

@@ -1,4 +1,4 @@
-"""One robot's controller as its own process (DESIGN.md, "The distributed runtime").
+"""One robot's controller as its own process (docs/design.md, "Processes").
 
 The agent knows its robot id, the run id and an endpoint of the sim server; it fetches everything
 else (graph neighbours, controller, policy) from ``swarm/<run>/config/<i>``. It then subscribes to
@@ -6,7 +6,7 @@ exactly its own pose key and to the message keys of its graph neighbours (never 
 robots), runs its onboard controller (:mod:`swarm.onboard`, numpy only) and publishes, each tick,
 its message to its neighbours and its saturated wheel speeds to the sim.
 
-Timing (DESIGN.md, information timing): at tick k the agent acts on its pose of tick k and on its
+Timing (docs/design.md, "Information timing"): at tick k the agent acts on its pose of tick k and on its
 neighbours' messages of tick k-1. ``lockstep``: it waits up to ``sim.neighbour_deadline_s`` (from
 receiving pose k) for the message of tick k-1 of every neighbour whose liveliness token is up; a
 message that misses it counts as lost and the neighbour is left out of that tick, as a dropped

@@ -1,4 +1,4 @@
-"""The sim server: PyBullet physics of the robots behind Zenoh (DESIGN.md, "The distributed runtime").
+"""The sim server: PyBullet physics of the robots behind Zenoh (docs/design.md, "Processes").
 
 Every control tick k it reads the axle-centre poses, streams them to ``trajectory.jsonl`` and
 publishes robot i's pose on ``swarm/<run>/robot/<i>/pose`` (its own key); it applies the wheel

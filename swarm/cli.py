@@ -274,7 +274,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="run a grid of topologies x sizes x seeds x controllers in the batched simulator",
         description="Run every (topology, N, controller) cell with SEEDS random starts in the batched "
         "kinematic simulator; write sweep.csv, sweep.md and plots of the convergence-time "
-        "distributions (absolute and as a ratio to the lower bound of DESIGN.md).",
+        "distributions (absolute and as a ratio to the lower bound of docs/design.md).",
     )
     sweep.add_argument("--config", help="YAML file with any SweepConfig fields")
     sweep.add_argument("--topologies", nargs="+", help="complete cycle line star random disk")

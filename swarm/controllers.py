@@ -1,4 +1,4 @@
-"""Batched controllers with the information timing of DESIGN.md.
+"""Batched controllers with the information timing of docs/design.md.
 
 At tick k robot i knows its own pose at tick k and the message each neighbour
 broadcast at tick k-1; it returns the world velocity of its controlled point

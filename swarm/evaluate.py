@@ -202,7 +202,7 @@ def write_tables(config: EvaluateConfig, rows: list[dict]) -> None:
     header += " disconnected |" if disk else ""
     lines = [
         f"Model `{config.model}`; random starts per cell as given; convergence: max_pairwise <= 0.2 m held "
-        "5 s, kinematic engine. t / LB: median ratio to the lower bound of DESIGN.md; t / LC: median "
+        "5 s, kinematic engine. t / LB: median ratio to the lower bound of docs/design.md; t / LC: median "
         "over starts of the time ratio to local consensus on the same start (where both converged).",
         "",
         header,

@@ -1,7 +1,7 @@
 """Link faults as a pure function of (sender, receiver, tick), and the results of faulty runs.
 
-DESIGN.md ("The distributed runtime", "Scenarios (YAML)") asks for runs that prove the decentralization
-under faults. The scenario's ``faults`` list holds two families:
+The design (docs/design.md) asks for runs that prove the decentralization under faults.
+The scenario's ``faults`` list holds two families:
 
 - link faults (``drop_link``, ``restore_link``, ``packet_loss``, ``delay``) act on what a robot hears.
   :class:`LinkFaults` turns them into a schedule that both engines read the same way: the robot agents
@@ -26,9 +26,9 @@ the first tick at or after it, ``until`` ends it before the first tick at or aft
 
 Which message a robot uses (:func:`usable_ticks`): the newest heard one among the ticks
 ``k - 1 - d, ..., k - d - A`` with ``A = sim.message_max_age_ticks`` (default 1 in lockstep: exactly the
-message of tick ``k - 1 - d``, as DESIGN.md's timing says; 10 in realtime, where messages arrive when they
-arrive). A neighbour with no usable message is left out of that tick: the controllers then normalise by
-the neighbours actually heard, and a robot that heard nobody holds still.
+message of tick ``k - 1 - d``, as docs/design.md's timing says; 10 in realtime, where messages arrive
+when they arrive). A neighbour with no usable message is left out of that tick: the controllers then
+normalise by the neighbours actually heard, and a robot that heard nobody holds still.
 
 Importable by a robot agent (numpy only); the results part imports the metrics lazily.
 """
@@ -442,7 +442,7 @@ def apply_fault_summary(
     The top-level keys keep their meaning for the live swarm: ``components`` and ``graph_connected`` are
     those of the live graph at the end; ``converged`` means the live robots reached one consensus (the
     live graph is connected and converged; a live graph split in several components, even if each of them
-    converged, cannot, as DESIGN.md says of the disconnected thesis graph: exit status 1, with the
+    converged, cannot, as docs/design.md says of the disconnected thesis graph: exit status 1, with the
     per-component results listed); ``convergence_time_s``, ``final_metric``, ``initial_metric`` and the
     lower bound are those of the live robots. The fault-blind values over every robot move to
     ``faults.all_robots``.

@@ -1,6 +1,6 @@
 """The thesis's features M and Phi (eq. 3.4-3.7) and their K-hop generalisation, in each robot's frame.
 
-Timing (DESIGN.md, "The decentralized GNN and the information timing"): at tick k robot i knows its
+Timing (docs/design.md, "Information timing"): at tick k robot i knows its
 own pose at tick k and the message each neighbour j broadcast at tick k-1. With ``c_i`` the
 normaliser and ``sum_j`` over the neighbours robot i heard:
 

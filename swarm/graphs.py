@@ -113,7 +113,7 @@ def _read_only(array: np.ndarray) -> np.ndarray:
 THESIS_WEAK_GRAPH: np.ndarray = _read_only(np.kron(np.eye(2), np.ones((3, 3)) - np.eye(3)))
 """The thesis's "random weak graph" (section 4.2.6): two disjoint triangles {0, 1, 2} and {3, 4, 5}.
 
-It is disconnected, so global consensus is impossible on it (DESIGN.md, "What the thesis got wrong");
+It is disconnected, so global consensus is impossible on it (docs/design.md, "What the thesis got wrong");
 report per-component consensus instead.
 """
 
@@ -199,7 +199,7 @@ def is_connected(adjacency: np.ndarray) -> bool:
 def algebraic_connectivity(adjacency: np.ndarray) -> float:
     """lambda_2, the second-smallest Laplacian eigenvalue (Fiedler value); 0 when disconnected or N < 2.
 
-    Linear consensus converges like ``exp(-lambda_2 t)`` (DESIGN.md, "Metrics").
+    Linear consensus converges like ``exp(-lambda_2 t)`` (docs/design.md, "Metrics and the lower bound").
     """
     validated = validate_adjacency(adjacency)
     if len(validated) < 2 or not is_connected(validated):

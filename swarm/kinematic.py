@@ -1,7 +1,7 @@
 """Batched kinematic simulator: B environments x N robots stepped together (numpy + numba kernels).
 
 Same robot model and saturation as every other engine (``swarm.robot``), the
-information timing of DESIGN.md (``swarm.controllers``), no bodies and no
+information timing of docs/design.md (``swarm.controllers``), no bodies and no
 collisions. Tick k: every robot acts on its pose at tick k and on the messages
 its neighbours broadcast at tick k-1 over the graph of tick k-1; then the
 unicycles integrate exactly over one control period. At tick 0 nobody has
@@ -140,7 +140,7 @@ class KinematicSim:
             senders = np.where(valid, index, 0)
             delay = faults.delay_array(senders, receivers, tick)
             reasons = faults.reasons_array(senders, receivers, tick - age)
-            newest = valid & (age == 1 + delay)  # the message DESIGN.md's timing (plus delay) names
+            newest = valid & (age == 1 + delay)  # the message the timing of docs/design.md (plus delay) names
             self.fault_counts["dropped_by_fault"] += int(np.count_nonzero(newest & (reasons == DROPPED)))
             self.fault_counts["lost_by_fault"] += int(np.count_nonzero(newest & (reasons == LOST)))
             usable = valid & (reasons == HEARD) & (age >= 1 + delay) & (age <= delay + max_age)

@@ -1,4 +1,4 @@
-"""Consensus metrics, convergence time and the physical lower bound (DESIGN.md, "Metrics").
+"""Consensus metrics, convergence time and the physical lower bound (docs/design.md, "Metrics").
 
 Positions are axle centres in metres, shape ``(..., N, 2)``; every metric is batched over the leading
 dimensions and returns shape ``(...)``.
@@ -39,7 +39,7 @@ def thesis_disk(positions: np.ndarray) -> np.ndarray:
     Robot 0 (the thesis's robot 1) is the centre, so the value depends on the labelling. The printed formula,
     eq. 4.1 ``d = sum_j |(x_1 - x_j) + (y_1 - y_j)|``, adds the signed offsets before the absolute value and
     can cancel: a robot at ``(x_1 + 1, y_1 - 1)`` contributes 0. Kept only to compare with the thesis's
-    figures; use ``max_pairwise`` (DESIGN.md, "What the thesis got wrong").
+    figures; use ``max_pairwise`` (docs/design.md, "What the thesis got wrong").
     """
     positions = _check_positions(positions)
     return np.sum(np.abs(positions[..., :1, :] - positions), axis=(-2, -1))
@@ -118,7 +118,7 @@ def lower_bound_s(initial_positions: np.ndarray, threshold_m: float, v_max_mps: 
     ``threshold`` the swarm has that diameter, so by Jung's theorem it lies in a disk of radius
     ``r = threshold / sqrt(3)``, centre ``c``. Axle centres move no faster than the wheel-speed limit
     ``v_max``, so after time ``t`` every initial position is within ``r + v_max t`` of ``c``; that disk
-    encloses the initial swarm, hence ``R_mec <= r + v_max t`` (DESIGN.md, "Metrics").
+    encloses the initial swarm, hence ``R_mec <= r + v_max t`` (docs/design.md, "Metrics").
     """
     if v_max_mps <= 0:
         raise ValueError(f"v_max_mps must be positive, got {v_max_mps}")
@@ -151,7 +151,7 @@ def convergence_time(times_s: np.ndarray, values: np.ndarray, threshold: float) 
 def component_results(
     times_s: np.ndarray, positions: np.ndarray, components: list[list[int]], metric: str, threshold: float
 ) -> list[dict]:
-    """Per-component consensus results for a (possibly disconnected) graph (DESIGN.md, "Results").
+    """Per-component consensus results for a (possibly disconnected) graph (docs/design.md, "Results").
 
     ``positions`` ``(T, N, 2)``. Each entry: ``{"robots", "converged", "convergence_time_s", "final_metric"}``
     with ``convergence_time_s`` None when not converged. The metric is computed on the component's robots only

@@ -2,7 +2,7 @@
 
 A robot agent imports this module and nothing heavier (no numba kernels, no torch, no pybullet;
 ``swarm.controllers`` holds the batched versions and imports numba). An onboard controller has
-the information timing of DESIGN.md: at tick k it sees its own pose at tick k and the messages
+the information timing of docs/design.md: at tick k it sees its own pose at tick k and the messages
 its neighbours broadcast at tick k-1 (those that arrived), and returns::
 
     act_one(pose (3,), neighbour_messages (m, D), weights (m,)) -> (u_world (2,), message (D,))

@@ -1,4 +1,4 @@
-"""The results directory of a run (DESIGN.md, Results) and the outcome written to metrics.json.
+"""The results directory of a run (docs/design.md, "Results") and the outcome written to metrics.json.
 
 Layout::
 
@@ -92,7 +92,7 @@ def summarize(
     final_adjacency: np.ndarray,
 ) -> dict:
     """Outcome of a run from its trajectory: global consensus, per-component consensus and the
-    lower bound of DESIGN.md (Metrics) for the ``max_pairwise`` metric."""
+    lower bound of docs/design.md ("Metrics and the lower bound") for the ``max_pairwise`` metric."""
     metric, threshold = scenario.success.metric, scenario.threshold
     positions = poses[..., :2]
     values = metrics.METRICS[metric](positions)

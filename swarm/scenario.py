@@ -1,4 +1,4 @@
-"""Scenario files: one YAML file says everything about a run (DESIGN.md, Scenarios).
+"""Scenario files: one YAML file says everything about a run (docs/design.md, "Scenarios").
 
 The whole schema is the pydantic model ``Scenario``; ``load_scenario`` turns any
 problem with a file into one ``ScenarioError`` line naming the file, the key and

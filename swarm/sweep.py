@@ -481,7 +481,7 @@ def write_tables(out_dir: Path, config: SweepConfig, rows: list[dict]) -> None:
     lines = [
         f"Sweep: {config.seeds} random starts per cell, gain K = {config.gain:g} 1/s, "
         f"v_max = {config.v_max_mps:g} m/s, control period {config.control_period_s:g} s, "
-        f"max_pairwise threshold {config.threshold_m:g} m. LB: lower bound of DESIGN.md.",
+        f"max_pairwise threshold {config.threshold_m:g} m. LB: lower bound of docs/design.md.",
         "",
         header,
         "|" + "---|" * (header.count("|") - 1),

@@ -1,4 +1,4 @@
-"""Zenoh key expressions and message schemas of the runtime (DESIGN.md, "The distributed runtime").
+"""Zenoh key expressions and message schemas of the runtime (docs/design.md, "The wire protocol").
 
 The one place that knows what travels on the wire. Key space of one run (``<run>`` is the run id)::
 

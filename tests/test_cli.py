@@ -93,7 +93,7 @@ def test_thesis_scenario_runs_and_writes_results(tmp_path, capsys, path):
         assert len(metrics["components"]) == 2
         assert "2 components" in captured.out
 
-    # no controller beats the physical limit (DESIGN.md, Metrics)
+    # no controller beats the physical limit (docs/design.md, "Metrics and the lower bound")
     assert metrics["lower_bound_s"] > 0
     for time_s in [metrics["convergence_time_s"], *(c["convergence_time_s"] for c in metrics["components"])]:
         assert time_s is None or time_s >= 0

@@ -111,7 +111,7 @@ class _Recorder(FeatureController):
 
 def test_hop_k_information_is_k_ticks_old():
     """In KinematicSim: M_i(k) uses neighbours' points of tick k-1, Phi_h(k) their Phi_(h-1) of tick k-1,
-    and at tick 0 nobody has heard anybody (DESIGN.md, information timing)."""
+    and at tick 0 nobody has heard anybody (docs/design.md, "Information timing")."""
     spec = FeatureSpec(3)
     rng = np.random.default_rng(4)
     count = 5

@@ -1,7 +1,7 @@
 """Tests for the batched kinematic simulator (swarm.kinematic), its numba kernels (swarm.kernels), the
 neighbour lists (swarm.links) and the batched controllers (swarm.controllers).
 
-Covers: kernels == numpy reference of swarm.robot; the information timing of DESIGN.md (tick 0, k-1
+Covers: kernels == numpy reference of swarm.robot; the information timing of docs/design.md (tick 0, k-1
 messages, k hops = k ticks); batched == per-robot controller; symmetries (relabelling, rigid motions);
 centroid conservation; disk graphs; keep(); batch == separate runs.
 """

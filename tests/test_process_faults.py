@@ -1,4 +1,4 @@
-"""Faults done to the processes of a distributed run (issue 5): real ``swarm run`` processes, real
+"""Faults done to the processes of a distributed run: real ``swarm run`` processes, real
 Zenoh sessions, real PyBullet, real signals.
 
 - the scenario's process faults (``kill_agent``, ``hang_agent``, ``restart_agent``, ``kill_server``)

@@ -2,7 +2,7 @@
 
 Every robot is an agent, ``robot_0`` ... ``robot_{N-1}``. Each sees only local information: its own
 ``[M, Phi2, ..., PhiK]`` (``[Mx, My, Phix, Phiy]`` for K = 2) in its own frame, computed from its pose at
-tick k and the messages its graph neighbours broadcast at tick k-1 (DESIGN.md timing; zero on the first
+tick k and the messages its graph neighbours broadcast at tick k-1 (docs/design.md timing; zero on the first
 tick). Actions: ``Box(-1, 1, (2,))``, the wished point velocity in the robot's frame in units of
 ``v_max``, saturated like every controller's (``actions="discrete"``: the thesis's four unit
 velocities). Shared reward per tick of ``dt`` seconds: ``-dt * mean_i |x_i - c_{-i}|`` (m s, ``c_{-i}``

@@ -4,7 +4,7 @@ This is the engine behind every environment in ``swarm.rl``: ``ConsensusVectorEn
 and out, auto-reset, for fast on-policy training), the thesis's single-agent Gymnasium env
 (``swarm.rl.consensus_env``, one environment whose robot 0 learns) and the PettingZoo env
 (``swarm.rl.consensus_v0``, one environment whose every robot is an agent). Thesis appendices C-D,
-with its errors fixed (DESIGN.md).
+with its errors fixed (docs/design.md).
 
 Episode. N robots start uniformly at random in the box ``swarm.initial_poses.box_for(N)`` (4 m x 4 m
 for the thesis's 6) with a minimum separation and uniform headings, on the ``topology`` graph
@@ -13,7 +13,7 @@ others (``learners="first"``: robots 1..N-1) run ``others``: local consensus on 
 with last tick's neighbour points, ``swarm.controllers.LocalConsensus``) or the centralized expert.
 Same robot model, saturation and integration as every engine (``KinematicSim`` kernels).
 
-Information timing (DESIGN.md). At tick k robot i observes what ``swarm.features`` computes from its
+Information timing (docs/design.md). At tick k robot i observes what ``swarm.features`` computes from its
 own pose at tick k and the messages ``[p_j, M_j]`` its neighbours broadcast at tick k-1, in its own
 frame (``frame="robot"``): ``[Mx, My, Phix, Phiy]`` for K = ``hops`` = 2 (thesis appendix C), ``2K``
 numbers in general. On an episode's first tick nobody has heard anybody: the observation is zero
@@ -36,7 +36,7 @@ Reward, shared by all learners, per step (units m s)::
 ``x`` the axle positions after the step, ``c_{-i}`` the centroid of the robots other than i: minus
 the time integral of the learners' distance to the rest of the swarm, so a policy earns most by
 reaching the others fast and staying there. Terminated: consensus, ``max_pairwise <= threshold_m``
-(DESIGN.md metric) after the step. Truncated: ``time_limit_s`` of simulated time without consensus.
+(docs/design.md metric) after the step. Truncated: ``time_limit_s`` of simulated time without consensus.
 """
 
 from __future__ import annotations

@@ -20,7 +20,7 @@ value loss, entropy bonus, gradient clipping, linear learning-rate annealing).
 initialised from a behavioural-cloning policy file (``init_policy``, default
 ``models/gnn_default.npz``). Robot i's observation is its robot-frame features ``(K, 2)``
 (``swarm.features``): its own pose of tick k and the messages ``[p_j, Phi1_j..Phi(K-1)_j]`` its
-neighbours broadcast at tick k-1, so hop-h information is h ticks old (DESIGN.md). Gaussian policy
+neighbours broadcast at tick k-1, so hop-h information is h ticks old (docs/design.md). Gaussian policy
 with a learned state-free log-std, shared by all robots (``Actor``):
 
 - ``action_space="velocity"`` (default): the action is the robot-frame point velocity,
@@ -97,7 +97,7 @@ class PPOConfig:
     hops: int = 8  # fresh GNN only
     device: str = "cpu"  # "cpu", "cuda" or "auto"
     threads: int = 1  # torch intra-op threads on the CPU
-    # environment (kinematic unicycles, DESIGN.md timing), the same robot and limits as swarm sweep
+    # environment (kinematic unicycles, docs/design.md timing), the same robot and limits as swarm sweep
     graphs: dict = field(
         default_factory=lambda: {"cycle": 0.3, "line": 0.3, "random": 0.15, "complete": 0.1, "star": 0.15}
     )
@@ -210,7 +210,7 @@ def resolve_device(name: str) -> torch.device:
 
 
 class TorchSwarm:
-    """Unicycles with DESIGN.md's information timing, as ``swarm.kinematic.KinematicSim`` (same
+    """Unicycles with the information timing of docs/design.md, as ``swarm.kinematic.KinematicSim`` (same
     features, saturation and exact unicycle step), batched in torch so a GPU can run thousands of
     swarms. Swarm b has ``count[b]`` robots in slots ``0..count-1``; the other slots are masked out
     (no links, not in the metric). At tick k each robot sees its pose of tick k and the messages its
@@ -294,7 +294,7 @@ class TorchSwarm:
         self.ticks += 1
 
     def max_pairwise(self) -> torch.Tensor:
-        """Largest distance between two robots of each swarm ``(B,)`` (axle centres, DESIGN.md)."""
+        """Largest distance between two robots of each swarm ``(B,)`` (axle centres, docs/design.md)."""
         distance = torch.cdist(self.positions, self.positions)
         both = self.valid[:, :, None] & self.valid[:, None, :]
         return torch.where(both, distance, torch.zeros_like(distance)).amax(dim=(-2, -1))
