@@ -35,6 +35,7 @@ import numpy as np
 from swarm.acl import write_credentials
 from swarm.faults import add_fault_results
 from swarm.procs import Supervisor, free_tcp_port
+from swarm.report import write_pictures
 from swarm.results import prepare_results_dir, read_trajectory, summarize, write_metrics
 from swarm.scenario import Scenario, ScenarioError, parse_scenario, resolve_model_path
 
@@ -415,8 +416,6 @@ def run_distributed(
     if scenario.faults:  # judged on the live robots and graph at the end (swarm.faults)
         add_fault_results(outcome, scenario, out_dir, records, times_s, poses)
     write_metrics(out_dir, outcome)
-    from swarm.runner import write_pictures
-
     write_pictures(out_dir, scenario, times_s, poses, outcome)
     return outcome
 
@@ -429,8 +428,6 @@ def _write_partial_metrics(scenario: Scenario, out_dir: Path, adjacency: np.ndar
     outcome = summarize(scenario, times_s, poses, adjacency)
     outcome.update(incomplete=why, ticks_planned=scenario.steps)
     write_metrics(out_dir, outcome)
-    from swarm.runner import write_pictures
-
     write_pictures(out_dir, scenario, times_s, poses, outcome)
 
 

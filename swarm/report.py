@@ -7,10 +7,14 @@ PIL (well under a millisecond each), the plot with matplotlib.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from swarm import graphs, metrics
+
+if TYPE_CHECKING:
+    from swarm.scenario import Scenario
 
 ROBOT_COLOURS = [
     (31, 119, 180),
@@ -143,3 +147,20 @@ def animation_gif(
     palette.putpalette([channel for colour in colours for channel in colour] + [0] * 3 * (256 - len(colours)))
     frames = [frame.quantize(palette=palette, dither=Image.Dither.NONE) for frame in frames]
     frames[0].save(path, save_all=True, append_images=frames[1:], duration=frame_ms, loop=0, optimize=False)
+
+
+def write_pictures(
+    out_dir: Path, scenario: Scenario, times: np.ndarray, poses: np.ndarray, outcome: dict
+) -> None:
+    """``convergence.png`` and ``animation.gif`` of a run in ``out_dir``."""
+    robots, topology = scenario.robots.count, scenario.topology.kind
+    title = f"{scenario.name}: {scenario.controller.kind}, {robots} robots, {topology}"
+    convergence_plot(out_dir / "convergence.png", times, poses[..., :2], outcome, title)
+    animation_gif(
+        out_dir / "animation.gif",
+        times,
+        poses,
+        scenario.adjacency(),
+        scenario.topology.radius_m,
+        scenario.robot.body_radius_m,
+    )

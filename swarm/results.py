@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from swarm import graphs, metrics
+from swarm.report import write_pictures
 from swarm.scenario import Scenario, dump_scenario
 
 
@@ -176,7 +177,5 @@ def report(out_dir: Path) -> dict:
                 records[int(record_path.stem.split("_")[1])] = json.loads(record_path.read_text())
         add_fault_results(outcome, scenario, out_dir, records, times_s, poses)
     write_metrics(out_dir, outcome)
-    from swarm.runner import write_pictures
-
     write_pictures(out_dir, scenario, times_s, poses, outcome)
     return outcome

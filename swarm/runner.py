@@ -13,6 +13,7 @@ import numpy as np
 from swarm.controllers import BatchedController, Centralized, LocalConsensus
 from swarm.faults import PROCESS_FAULTS, LinkFaults, add_fault_results, message_max_age_ticks
 from swarm.kinematic import KinematicSim
+from swarm.report import write_pictures
 from swarm.results import TrajectoryWriter, prepare_results_dir, summarize, write_metrics
 from swarm.scenario import Scenario, ScenarioError
 
@@ -82,24 +83,6 @@ def run_kinematic(
     write_metrics(out_dir, outcome)
     write_pictures(out_dir, scenario, times, poses, outcome)
     return outcome
-
-
-def write_pictures(
-    out_dir: Path, scenario: Scenario, times: np.ndarray, poses: np.ndarray, outcome: dict
-) -> None:
-    from swarm.report import animation_gif, convergence_plot
-
-    robots, topology = scenario.robots.count, scenario.topology.kind
-    title = f"{scenario.name}: {scenario.controller.kind}, {robots} robots, {topology}"
-    convergence_plot(out_dir / "convergence.png", times, poses[..., :2], outcome, title)
-    animation_gif(
-        out_dir / "animation.gif",
-        times,
-        poses,
-        scenario.adjacency(),
-        scenario.topology.radius_m,
-        scenario.robot.body_radius_m,
-    )
 
 
 def run_scenario(
