@@ -207,12 +207,12 @@ def launch(robots: list[int], args: argparse.Namespace, settings: dict[int, dict
             break
         except InterruptedError:
             continue
-        robot = children.pop(pid, None)
+        child: int | None = children.pop(pid, None)
         code = os.waitstatus_to_exitcode(status)
         if code != 0:
-            why = _exit_reason(args, robot)
+            why = _exit_reason(args, child)
             print(
-                f"robot-agent: robot {robot} (pid {pid}) exited with {code}{why}", file=sys.stderr, flush=True
+                f"robot-agent: robot {child} (pid {pid}) exited with {code}{why}", file=sys.stderr, flush=True
             )
             worst = max(worst, 1)
     return worst

@@ -51,6 +51,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import zenoh
@@ -315,10 +316,11 @@ class RobotAgent:
         may still come: not from before this agent's first tick or the neighbour's return, not one the
         link faults drop anyway."""
         faults, me, first_tick = self._faults, self.robot, self._first_tick
+        assert first_tick is not None  # called once a pose came
         for j in self._neighbours_alive:
             needed = tick - 1 if faults.empty else tick - 1 - faults.delay_ticks(j, me, tick)
             joined = self._joined.get(j, 0)
-            if needed < first_tick or joined is None or needed < joined or needed in self._inbox[j]:
+            if joined is None or needed < first_tick or needed < joined or needed in self._inbox[j]:
                 continue
             if faults.empty or faults.heard(j, me, needed):
                 return True
@@ -381,6 +383,7 @@ class RobotAgent:
         return None
 
     def _fetch_config(self, session: zenoh.Session) -> wire.AgentConfig | None:
+        assert self.keys is not None  # a run id is known once a configuration is fetched
         key = self.keys.config(self.robot)
         self.record["queries"].append(key)
         deadline_s = self._started_s + self.options.startup_timeout_s
@@ -463,7 +466,7 @@ class RobotAgent:
             config_s=round(time.perf_counter() - self._started_s, 4),
         )
         ring = zenoh.handlers.RingChannel
-        entities = [sim_sub]
+        entities: list[Any] = [sim_sub]
         pose_sub = session.declare_subscriber(keys.pose(self.robot), ring(POSE_RING))
         entities.append(pose_sub)
         record["subscriptions"].append(keys.pose(self.robot))

@@ -18,6 +18,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import zenoh
@@ -120,7 +121,8 @@ class CentralController:
         keys, record = self.keys, self.record
         guard = lambda callback: wire.guarded(callback, record, "robot_agent.central")  # noqa: E731
         on_sim_alive = guard(self._on_sim_alive)
-        entities = [session.liveliness().declare_subscriber(keys.alive_sim, on_sim_alive, history=True)]
+        alive_sim = session.liveliness().declare_subscriber(keys.alive_sim, on_sim_alive, history=True)
+        entities: list[Any] = [alive_sim]
         record["liveliness_subscriptions"].append(keys.alive_sim)
         config = self._fetch_config(session, started_s)
         if config is None:

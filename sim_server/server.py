@@ -41,6 +41,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import zenoh
@@ -77,7 +78,7 @@ def agent_configs(scenario: Scenario, run: str, policy: bytes | None) -> list[wi
     adjacency = scenario.adjacency()
     if adjacency is None:
         raise ValueError("disk topologies are not supported by the distributed runtime yet")
-    common = {
+    common: dict[str, Any] = {
         "run": run,
         "robot_count": scenario.robots.count,
         "controller": scenario.controller.kind,
@@ -140,7 +141,7 @@ class SimServer:
         self._published_at_s: dict[int, float] = {}
         self._newest_cmd_tick: dict[int, int] = {}  # robot -> tick of the newest command accepted
         self._stats_written_s = time.perf_counter()
-        self.stats = {
+        self.stats: dict[str, Any] = {
             "invalid_commands": 0,
             "late_commands": 0,
             "future_commands": 0,

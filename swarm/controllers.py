@@ -11,7 +11,6 @@ A controller implements::
     act(poses (B,N,3), points (B,N,2), inbox (B,N,D), heard (B,N,N)) -> (u_world (B,N,2), outbox (B,N,D))
 
 ``points`` are the controlled points (``swarm.robot.controlled_point`` of the poses),
-
 ``inbox[b, j]`` is what robot j broadcast last tick; ``heard[b, i, j]`` is 1
 when robot i received it (graph edge and message delivered), else 0.
 """
@@ -32,7 +31,9 @@ class BatchedController(Protocol):
     message_dim: int
     centralized: bool
 
-    def act(self, poses: np.ndarray, inbox: np.ndarray, heard: Links) -> tuple[np.ndarray, np.ndarray]: ...
+    def act(
+        self, poses: np.ndarray, points: np.ndarray, inbox: np.ndarray, heard: Links
+    ) -> tuple[np.ndarray, np.ndarray]: ...
 
 
 class LocalConsensus:

@@ -30,6 +30,7 @@ import json
 import math
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
+from typing import Any, Literal
 
 import numpy as np
 
@@ -55,8 +56,8 @@ class CollectConfig:
     graphs: tuple[str, ...] = GRAPH_KINDS
     sizes: tuple[int, ...] = (4, 5, 6, 8, 10, 12)
     hops: int = 8  # K: features Phi1..PhiK (a superset for every model with K' <= K, same options)
-    phi_source: str = "m"
-    normaliser: str = "degree"
+    phi_source: Literal["m", "output"] = "m"
+    normaliser: Literal["degree", "n_minus_1"] = "degree"
     labels: str = "centralized"  # or "local_consensus"
     gain: float = 1.0  # K of eq. 3.1, 1/s
     v_max_mps: float = 0.5
@@ -99,7 +100,7 @@ PRESETS: dict[str, CollectConfig] = {
 }
 
 
-def collect_config(preset: str = "default", **overrides: object) -> CollectConfig:
+def collect_config(preset: str = "default", **overrides: Any) -> CollectConfig:
     if preset not in PRESETS:
         raise ValueError(f"unknown preset {preset!r}; choose one of {sorted(PRESETS)}")
     known = {item.name for item in fields(CollectConfig)}
@@ -133,15 +134,15 @@ class Dataset:
         meta = {"format": FORMAT, "format_version": FORMAT_VERSION, **self.metadata}
         encoded = np.frombuffer(json.dumps(meta).encode("utf-8"), dtype=np.uint8)
         with open(path, "wb") as file:
-            np.savez(
-                file,
-                features=self.features,
-                labels=self.labels,
-                robot_count=self.robot_count,
-                graph=self.graph,
-                tick=self.tick,
-                **{METADATA_KEY: encoded},
-            )
+            arrays: dict[str, Any] = {
+                "features": self.features,
+                "labels": self.labels,
+                "robot_count": self.robot_count,
+                "graph": self.graph,
+                "tick": self.tick,
+                METADATA_KEY: encoded,
+            }
+            np.savez(file, **arrays)
         return path
 
 

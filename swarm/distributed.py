@@ -164,7 +164,8 @@ class FaultInjector:
             at_s = fault.at_s or 0.0
             self.actions.append(_Action(at_s, order, fault.kind, fault.robot))
             if fault.kind == "hang_agent":
-                self.actions.append(_Action(at_s + fault.duration_s, order, "resume_agent", fault.robot))
+                resume_s = at_s + (fault.duration_s or 0.0)  # the schema requires a hang's duration
+                self.actions.append(_Action(resume_s, order, "resume_agent", fault.robot))
         self.actions.sort()
         self.server_pid: int | None = None
         self.server_killed_tick: int | None = None
@@ -230,7 +231,9 @@ class FaultInjector:
                     self.server_killed_tick = tick
                 detail = f"SIGKILL to the sim server, pid {self.server_pid}"
             self._event(kind, None, at_s, tick, detail)
-        elif kind == "kill_agent":
+            return
+        assert robot is not None  # every other kind acts on one robot's agent
+        if kind == "kill_agent":
             pid, detail = self._signal(robot, signal.SIGKILL)
             self.stopped.discard(robot)
             self._event(kind, robot, at_s, tick, detail, pid=pid)

@@ -164,7 +164,8 @@ class LinkFaults:
         self._down: dict[
             tuple[int, int], list[tuple[int, int | None, int]]
         ] = {}  # pair -> (start, end, fault)
-        link_events = []  # (tick, order, fault index, drop?, pairs)
+        # (tick, fault index, drop?, pairs)
+        link_events: list[tuple[int, int, bool, frozenset[tuple[int, int]]]] = []
         for index, fault in enumerate(faults):
             kind = _get(fault, "kind")
             start = tick_of(_get(fault, "at_s") or 0.0, self.control_period_s)
@@ -177,6 +178,7 @@ class LinkFaults:
             elif kind == "delay":
                 self._delays.append(_Window(index, start, end, pairs, ticks=int(_get(fault, "ticks"))))
             elif kind in ("drop_link", "restore_link"):
+                assert pairs is not None  # the schema requires their link
                 link_events.append((start, index, kind == "drop_link", pairs))
         down_since: dict[tuple[int, int], tuple[int, int]] = {}  # pair -> (tick, fault index)
         for tick, index, drop, pairs in sorted(link_events, key=lambda event: event[:2]):

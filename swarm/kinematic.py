@@ -96,6 +96,7 @@ class KinematicSim:
         """Communication graph at the current tick."""
         if self._fixed_links is not None:
             return self._fixed_links
+        assert self.disk_radius_m is not None  # no fixed graph: a proximity graph
         return Links.disk(self.poses[..., :2], self.disk_radius_m)
 
     def adjacency(self) -> np.ndarray:
@@ -131,6 +132,7 @@ class KinematicSim:
         if not self._history:
             return Links.nobody(batch, count), np.zeros((batch, count, self.controller.message_dim))
         faults, tick, max_age = self.link_faults, self.tick, self.message_max_age_ticks
+        assert faults is not None  # the faulty path
         chosen = np.zeros((batch, count, count), dtype=bool)
         receivers = np.arange(count)[None, :, None]
         picked = []  # (env, receiver, sender, column, weight) per age

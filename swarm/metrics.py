@@ -171,7 +171,7 @@ def component_results(
             time_s, final_metric = float(times_s[0]), 0.0
         else:
             values = METRICS[metric](positions[:, robots, :])
-            time_s, final_metric = convergence_time(times_s, values, threshold), float(values[-1])
+            time_s, final_metric = float(convergence_time(times_s, values, threshold)), float(values[-1])
         converged = not math.isnan(time_s)
         results.append(
             {

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -91,7 +91,7 @@ class _PolicyAdapter:
     """A ``swarm.policy.Policy`` (``act_one(pose, neighbour_messages)``) behind the onboard interface;
     the policy ignores link weights (it learned from the graph structure)."""
 
-    def __init__(self, policy: object):
+    def __init__(self, policy: Any):
         self.policy = policy
         self.message_dim = int(policy.message_dim)
 

@@ -23,8 +23,9 @@ from __future__ import annotations
 import io
 import json
 import math
+from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -40,7 +41,10 @@ METADATA_KEY = "__metadata__"
 MIRROR = np.array([1.0, -1.0])  # reflection about the robot's heading axis, in its own frame
 COSINE_EPS_M = 1e-3  # as swarm.models.gnn
 
-_ACTIVATIONS = {"relu": lambda x: np.maximum(x, 0.0), "tanh": np.tanh}
+_ACTIVATIONS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
+    "relu": lambda x: np.maximum(x, 0.0),
+    "tanh": np.tanh,
+}
 
 
 class PolicyFormatError(ValueError):
@@ -48,7 +52,7 @@ class PolicyFormatError(ValueError):
 
 
 def _layers(arrays: dict[str, np.ndarray], prefix: str) -> list[tuple[np.ndarray, np.ndarray | None]]:
-    layers = []
+    layers: list[tuple[np.ndarray, np.ndarray | None]] = []
     while f"{prefix}.{len(layers)}.weight" in arrays:
         index = len(layers)
         layers.append((arrays[f"{prefix}.{index}.weight"], arrays.get(f"{prefix}.{index}.bias")))
@@ -286,9 +290,10 @@ def save_policy(path: str | Path, metadata: dict, arrays: dict[str, np.ndarray])
     """Write a policy file (the exporter in ``swarm.models`` fills ``metadata`` and ``arrays``)."""
     metadata = {"format": FORMAT, "format_version": FORMAT_VERSION, **metadata}
     encoded = np.frombuffer(json.dumps(metadata, sort_keys=True).encode("utf-8"), dtype=np.uint8)
-    payload = {name: np.asarray(value, dtype=np.float32) for name, value in arrays.items()}
+    payload: dict[str, Any] = {name: np.asarray(value, dtype=np.float32) for name, value in arrays.items()}
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "wb") as file:
-        np.savez(file, **payload, **{METADATA_KEY: encoded})
+        payload[METADATA_KEY] = encoded
+        np.savez(file, **payload)
     return path

@@ -117,7 +117,7 @@ def animation_gif(
     for index in frame_indices:
         image = Image.new("RGB", (size_px, size_px + 18), "white")
         draw = ImageDraw.Draw(image)
-        edges = adjacency if adjacency is not None else graphs.disk(xy[index], disk_radius_m)
+        edges = adjacency if adjacency is not None else graphs.disk(xy[index], disk_radius_m or 0.0)
         for robot in range(poses.shape[1]):
             trail = [to_px(xy[past, robot]) for past in frame_indices if past <= index]
             if len(trail) > 1:
@@ -126,7 +126,7 @@ def animation_gif(
         for i, j in zip(rows, cols, strict=True):
             draw.line([to_px(xy[index, i]), to_px(xy[index, j])], fill=(190, 190, 190), width=1)
         for robot, (x, y, theta) in enumerate(poses[index]):
-            cx, cy = to_px((x, y))
+            cx, cy = to_px(np.array((x, y)))
             colour = ROBOT_COLOURS[robot % len(ROBOT_COLOURS)]
             draw.ellipse(
                 [cx - radius_px, cy - radius_px, cx + radius_px, cy + radius_px], outline=colour, width=2
@@ -141,7 +141,7 @@ def animation_gif(
         draw.text((4, size_px + 3), caption, fill=(0, 0, 0))
         frames.append(image)
     # Every colour drawn is known: quantize all frames to that one palette (no per-frame palette search).
-    colours = [(255, 255, 255), (0, 0, 0), (190, 190, 190)]
+    colours: list[tuple[int, ...]] = [(255, 255, 255), (0, 0, 0), (190, 190, 190)]
     colours += ROBOT_COLOURS + FADED_COLOURS
     palette = Image.new("P", (1, 1))
     palette.putpalette([channel for colour in colours for channel in colour] + [0] * 3 * (256 - len(colours)))

@@ -82,7 +82,7 @@ def read_trajectory(path: Path) -> tuple[np.ndarray, np.ndarray, list[dict]]:
     return times, poses, records
 
 
-def _none_if_nan(value: float) -> float | None:
+def _none_if_nan(value: float | np.ndarray | None) -> float | None:
     return None if value is None or math.isnan(value) else float(value)
 
 
@@ -155,6 +155,7 @@ def report(out_dir: Path) -> dict:
         raise ScenarioError(f"{path}: poses of {poses.shape[1]} robots but the scenario has {count}")
     adjacency = scenario.adjacency()
     if adjacency is None:
+        assert scenario.topology.radius_m is not None  # no fixed graph: a disk graph
         adjacency = graphs.disk(poses[-1, :, :2], scenario.topology.radius_m)
     outcome = summarize(scenario, times_s, poses, adjacency)
     try:

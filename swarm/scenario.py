@@ -348,6 +348,7 @@ class Scenario(_Strict):
                     f"{list(fault.link)} is not an edge of the {self.topology.kind} graph",
                 )
             if fault.kind in ("drop_link", "restore_link"):
+                assert fault.link is not None  # required for these kinds
                 i, j = fault.link
                 pairs = {(i, j)} if fault.direction == "one" else {(i, j), (j, i)}
                 if fault.kind == "drop_link":
@@ -378,6 +379,7 @@ class Scenario(_Strict):
         if init.poses is not None:
             return np.array(init.poses, dtype=float)
         spec = init.random
+        assert spec is not None  # InitSpec holds exactly one of poses, random
         rng = np.random.default_rng(spec.seed)
         return random_poses(rng, 1, self.robots.count, spec.x, spec.y, spec.min_separation_m, spec.theta)[0]
 
@@ -392,8 +394,10 @@ def fixed_adjacency(topology: TopologySpec, count: int, seed: int | None = None)
     if kind == "disk":
         return None
     if kind == "matrix":
+        assert topology.adjacency is not None  # TopologySpec's check
         return graphs.validate_adjacency(topology.adjacency)
     if kind == "random":
+        assert topology.p is not None  # TopologySpec's check
         return graphs.erdos_renyi(
             count, topology.p, topology.seed if seed is None else seed, connected=topology.connected
         )

@@ -14,6 +14,7 @@ import csv
 import hashlib
 import json
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
@@ -127,6 +128,8 @@ def make_controller(
     if kind == "gnn":
         from swarm.policy import load_policy
 
+        if model is None:
+            raise ValueError("controller 'gnn' needs a model file")
         return load_policy(model, robot, robot_count)
     return LocalConsensus(robot, gain) if kind == "local_consensus" else Centralized(robot, gain)
 
@@ -296,6 +299,7 @@ def run_cell(config: SweepConfig, topology: str, count: int, controller: str, on
         [metrics.lower_bound_s(start[:, :2], config.threshold_m, config.v_max_mps) for start in poses]
     )
     if adjacency is None:
+        assert disk_radius is not None
         lambda2 = np.array(
             [graphs.algebraic_connectivity(graphs.disk(start[:, :2], disk_radius)) for start in poses]
         )
@@ -351,6 +355,7 @@ def cell_settings(config: SweepConfig, controller: str) -> dict:
     if config.first_starts is not None:
         settings["first_starts"] = config.first_starts
     if controller == "gnn":
+        assert config.model is not None  # SweepConfig.check: gnn needs a model
         settings["model_sha256"] = file_hash(config.model)
     return settings
 
@@ -440,14 +445,14 @@ def run_sweep(config: SweepConfig, out_dir: Path, progress: bool = True) -> list
         bar = tqdm(total=len(cells_todo), unit="cell", desc="sweep")
     cells, rows = [], []
     for topology, count, controller in cells_todo:
+        on_progress: Callable[[float, int], None] | None = None
         if bar is not None:
             bar.set_description(f"{topology} N={count} {controller}")
 
-            def on_progress(time_s: float, done: int, bar=bar) -> None:
+            def show(time_s: float, done: int, bar=bar) -> None:
                 bar.set_postfix_str(f"t={time_s:.0f}s done={done}/{config.seeds}")
 
-        else:
-            on_progress = None
+            on_progress = show
         cell = cached_cell(out_dir, config, topology, count, controller, on_progress)
         cells.append(cell)
         rows.append(summarize_cell(cell))

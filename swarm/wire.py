@@ -30,7 +30,7 @@ import struct
 import sys
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import msgpack
 import numpy as np
@@ -238,7 +238,7 @@ def _float(value: Any, bound: float) -> float | None:
 
 def _floats(body: dict, bounds: dict[str, float]) -> list[float] | None:
     values = [_float(body.get(key), bound) for key, bound in bounds.items()]
-    return None if any(value is None for value in values) else values
+    return None if any(value is None for value in values) else cast("list[float]", values)
 
 
 def encode_pose(tick: int, time_s: float, pose: Sequence[float]) -> bytes:
@@ -304,7 +304,7 @@ def decode_message_values(data: bytes, dim: int | None = None) -> tuple[int, Seq
         if not all(abs(value) <= MAX_MESSAGE_ABS for value in floats):
             return None  # NaN fails the comparison too
         return tick, floats
-    values = np.frombuffer(raw, dtype="<f8").astype(np.float64)
+    values: Any = np.frombuffer(raw, dtype="<f8").astype(np.float64)
     if not np.all(np.abs(values) <= MAX_MESSAGE_ABS):
         return None
     return tick, values
@@ -339,7 +339,7 @@ def decode_config(data: bytes) -> AgentConfig | None:
         params = body["robot_params"]
         checks = [
             count is not None and robot is not None and robot < count,
-            all(_int(j, 0, count - 1) is not None and j != robot for j in neighbours),
+            all(_int(j, 0, (count or 1) - 1) is not None and j != robot for j in neighbours),
             len(set(neighbours)) == len(neighbours) == len(weights),
             None not in weights and numbers is not None and numbers[1] > 0,
             deadline is not None and deadline >= 0,
@@ -350,6 +350,7 @@ def decode_config(data: bytes) -> AgentConfig | None:
         ]
         if not all(checks):
             return None
+        assert count is not None and robot is not None and numbers is not None and deadline is not None
         return AgentConfig(
             run=body["run"],
             robot=robot,
@@ -358,7 +359,7 @@ def decode_config(data: bytes) -> AgentConfig | None:
             gain=numbers[0],
             robot_params=dict(params),
             neighbours=neighbours,
-            weights=weights,
+            weights=cast("tuple[float, ...]", weights),
             mode=body["mode"],
             control_period_s=numbers[1],
             neighbour_deadline_s=deadline,

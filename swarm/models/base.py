@@ -7,6 +7,7 @@ The robot then saturates it (``swarm.features.saturate_local_velocity``) and rot
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from itertools import pairwise
 from pathlib import Path
 
@@ -18,7 +19,10 @@ from swarm.features import FeatureSpec
 from swarm.policy import FeatureController, save_policy
 from swarm.robot import RobotParams
 
-ACTIVATIONS = {"relu": nn.functional.relu, "tanh": torch.tanh}
+ACTIVATIONS: dict[str, Callable[[torch.Tensor], torch.Tensor]] = {
+    "relu": nn.functional.relu,
+    "tanh": torch.tanh,
+}
 
 
 def mlp(layers: nn.ModuleList, x: torch.Tensor, activation, final_activation: bool = False) -> torch.Tensor:

@@ -56,6 +56,7 @@ def hop_invariants(f: torch.Tensor, scale_m: float) -> torch.Tensor:
 class GatedGraphFilter(PolicyModel):
     kind = "gnn"
     activation = "tanh"
+    first_hop: torch.Tensor  # buffer
 
     def __init__(
         self,
@@ -105,6 +106,7 @@ class GatedGraphFilter(PolicyModel):
 class MLPGraphFilter(PolicyModel):
     kind = "gnn_mlp"
     activation = "tanh"
+    mirror: torch.Tensor  # buffer
 
     def __init__(
         self,

@@ -19,6 +19,7 @@ Options: ``swarm.rl.vector_env.ConsensusConfig`` (``robots``, ``topology``, ``ho
 from __future__ import annotations
 
 import functools
+from typing import Any
 
 import numpy as np
 from gymnasium import spaces
@@ -93,7 +94,7 @@ class ConsensusParallelEnv(ParallelEnv):
         pass
 
 
-def parallel_env(**kwargs: object) -> ConsensusParallelEnv:
+def parallel_env(**kwargs: Any) -> ConsensusParallelEnv:
     """The parallel (simultaneous-action) form; keyword arguments are ``ConsensusConfig`` fields."""
     return ConsensusParallelEnv(**kwargs)
 

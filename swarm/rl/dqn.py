@@ -32,6 +32,7 @@ import gymnasium
 import numpy as np
 import torch
 from stable_baselines3 import DQN
+from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList, CheckpointCallback
 from stable_baselines3.common.logger import configure
 from stable_baselines3.common.monitor import Monitor
@@ -147,7 +148,7 @@ def toward_neighbours_policy(env_overrides: dict) -> Policy:
     return lambda obs: np.argmax(obs[:, :2] @ velocities.T, axis=1)
 
 
-def greedy_policy(model: DQN) -> Policy:
+def greedy_policy(model: BaseAlgorithm) -> Policy:
     return lambda obs: model.predict(obs, deterministic=True)[0]
 
 
@@ -222,12 +223,12 @@ def plot_learning_curve(out: Path, eval_rows: list[dict], baselines: dict[str, d
         axes[0].plot(steps[window - 1 :], smooth, color="C0", label=f"mean of {window}")
         axes[0].legend(loc="lower right")
     axes[0].set(xlabel="environment steps", ylabel="episode return (m s)", title="training (epsilon-greedy)")
-    steps = [row["timesteps"] for row in eval_rows]
+    eval_steps = [row["timesteps"] for row in eval_rows]
     for axis, key, label in (
         (axes[1], "success_rate", "success rate"),
         (axes[2], "mean_return", "mean return"),
     ):
-        axis.plot(steps, [row[key] for row in eval_rows], "o-", color="C0", label="DQN greedy")
+        axis.plot(eval_steps, [row[key] for row in eval_rows], "o-", color="C0", label="DQN greedy")
         for (name, result), color in zip(baselines.items(), ("C3", "C2"), strict=False):
             axis.axhline(result[key], ls="--", color=color, label=name)
         axis.set(xlabel="environment steps", ylabel=label, title=f"held-out episodes: {label}")

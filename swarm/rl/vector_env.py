@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, fields, replace
+from typing import Literal
 
 import numpy as np
 from gymnasium import spaces
@@ -74,7 +75,7 @@ class ConsensusConfig:
     actions: str = "continuous"  # or "discrete" (4 unit point velocities, the thesis's up/down/left/right)
     frame: str = "robot"  # frame of observations and actions: "robot" (thesis eq. 3.2-3.3, fixed) or "world"
     hops: int = 2  # K: observation [M, Phi2, ..., PhiK] (2K numbers; K = 2 is the thesis's)
-    normaliser: str = "degree"  # or "n_minus_1" (the thesis's, needs N)
+    normaliser: Literal["degree", "n_minus_1"] = "degree"  # "n_minus_1": the thesis's, needs N
     v_max_mps: float = 0.5
     control_period_s: float = 0.05
     action_repeat: int = 1  # control ticks per environment step
@@ -235,9 +236,16 @@ class ConsensusVectorEnv:
         self.controller = _MixedController(config, self.robot, self.spec)
         self.box_m = box_for(config.robots)
         self.rngs: list[np.random.Generator] = []
-        self.sim: _RestartableSim | None = None
+        self._sim: _RestartableSim | None = None
         self.steps = np.zeros(self.num_envs, dtype=np.int64)
         self.returns = np.zeros(self.num_envs)
+
+    @property
+    def sim(self) -> _RestartableSim:
+        """The batched simulator (after the first ``reset``)."""
+        if self._sim is None:
+            raise RuntimeError("call reset() first")
+        return self._sim
 
     # --- episodes -------------------------------------------------------------------------------
     def _draw(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -267,7 +275,7 @@ class ConsensusVectorEnv:
         poses = np.stack([start[0] for start in starts])
         adjacency = np.stack([start[1] for start in starts])
         self.controller.wish = np.zeros((self.num_envs, self.num_agents, 2))
-        self.sim = _RestartableSim(
+        self._sim = _RestartableSim(
             self.robot, self.controller, self.config.control_period_s, poses, adjacency
         )
         self.steps[:] = 0

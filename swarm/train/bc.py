@@ -185,7 +185,7 @@ def train(config: BCConfig) -> Path:
             state = {name: torch.from_numpy(file[name]) for name in file.files if name != "__metadata__"}
         model.load_state_dict(state)
     if config.optimizer == "sgd":
-        optimizer = torch.optim.SGD(
+        optimizer: torch.optim.Optimizer = torch.optim.SGD(
             model.parameters(), lr=config.lr, momentum=config.momentum, weight_decay=config.weight_decay
         )
     else:

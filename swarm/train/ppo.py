@@ -72,6 +72,7 @@ import math
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -344,6 +345,7 @@ def load_gnn(config: PPOConfig, robot: RobotParams) -> GatedGraphFilter:
             f"init_policy: PPO fine-tunes the gated GNN (kind 'gnn'), not {metadata['model']['kind']!r}"
         )
     model = build_model(metadata)
+    assert isinstance(model, GatedGraphFilter)  # kind 'gnn'
     model.load_state_dict(state)
     return model
 
@@ -384,7 +386,7 @@ class Actor(nn.Module):
             return self.mean(features_local)
         return self._gate(features_local)[1]
 
-    def apply(self, features_local: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+    def apply(self, features_local: torch.Tensor, action: torch.Tensor) -> torch.Tensor:  # type: ignore[override]
         """The robot-frame point velocity a robot applies for ``action`` (saturated)."""
         if self.action_space == "velocity":
             return saturate(action, self.robot)
@@ -462,6 +464,7 @@ def evaluate(actor: Actor, config: PPOConfig, robot: RobotParams, device, dtype)
     result: dict[str, float | None] = {}
     for topology, count in config.eval_cells:
         poses, adjacency, _ = cell_starts(sweep, topology, count)
+        assert adjacency is not None  # fixed graphs only
         env = TorchSwarm(
             len(poses), count, actor.gnn.spec.hops, robot, config.control_period_s, device, dtype
         )
@@ -610,7 +613,8 @@ def train(config: PPOConfig) -> Path:
 
     def run_eval(update: int) -> None:
         nonlocal best_score, best_update
-        row = {"update": update, "env_steps": env_steps, **evaluate(actor, config, robot, device, dtype)}
+        row: dict[str, Any] = {"update": update, "env_steps": env_steps}
+        row.update(evaluate(actor, config, robot, device, dtype))
         row["score"] = eval_score(row)
         eval_rows.append(row)
         write_csv(out / "eval.csv", eval_rows)
@@ -692,7 +696,9 @@ def train(config: PPOConfig) -> Path:
         flat = {key: value.reshape(T * B, *value.shape[2:]) for key, value in buffers.items()}
         flat_adv, flat_ret = advantages.reshape(-1), returns.reshape(-1)
         train_policy = update > config.critic_warmup_updates
-        stats = {"policy_loss": [], "value_loss": [], "approx_kl": [], "clip_fraction": []}
+        stats: dict[str, list[float]] = {
+            key: [] for key in ("policy_loss", "value_loss", "approx_kl", "clip_fraction")
+        }
         size = T * B // config.minibatches
         for _ in range(config.epochs):
             order = torch.randperm(T * B, generator=shuffle).to(device)
