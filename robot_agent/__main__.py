@@ -32,7 +32,7 @@ import zenoh
 from robot_agent.agent import EXIT_FAILED, AgentOptions, RobotAgent
 from swarm import acl, wire
 from swarm.procs import die_with_parent
-from swarm.usage import OneLineArgumentParser, one_line
+from swarm.usage import OneLineArgumentParser, configure_logging, one_line
 
 
 def parse_robots(text: str) -> list[int]:
@@ -220,6 +220,7 @@ def launch(robots: list[int], args: argparse.Namespace, settings: dict[int, dict
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    configure_logging()
     if args.die_with_parent:
         die_with_parent()
     robots = [args.robot] if args.robot is not None else args.robots

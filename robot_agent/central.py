@@ -27,7 +27,7 @@ from swarm import wire
 from swarm.experts import complete_consensus_velocity
 from swarm.procs import die_with_parent
 from swarm.robot import RobotParams, controlled_point, point_velocity_to_wheels
-from swarm.usage import EXIT_BAD_INPUT, OneLineArgumentParser, one_line
+from swarm.usage import EXIT_BAD_INPUT, OneLineArgumentParser, configure_logging, one_line
 
 POSE_DEADLINE_S = 1.0
 """Longest the central controller waits for the rest of a tick's poses once the first one came."""
@@ -188,6 +188,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--log-dir", help="write central.json here")
     parser.add_argument("--die-with-parent", action="store_true")
     args = parser.parse_args(argv)
+    configure_logging()
     if args.die_with_parent:
         die_with_parent()
     connect = args.connect or ["tcp/127.0.0.1:7447"]

@@ -19,7 +19,7 @@ import zenoh
 from swarm import acl, wire
 from swarm.procs import die_with_parent
 from swarm.scenario import ScenarioError, load_scenario, resolve_model_path
-from swarm.usage import EXIT_BAD_INPUT, OneLineArgumentParser, one_line, silenced_stderr
+from swarm.usage import EXIT_BAD_INPUT, OneLineArgumentParser, configure_logging, one_line, silenced_stderr
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -53,6 +53,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    configure_logging(-1 if args.quiet else 0)
     if args.die_with_parent:
         die_with_parent()
     with silenced_stderr():  # pybullet prints its build time on stderr when imported

@@ -34,6 +34,7 @@ the file is rewritten every ``STATS_EVERY_S`` while the run goes on (a killed se
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 import signal
@@ -51,6 +52,8 @@ from swarm import wire
 from swarm.results import TrajectoryWriter, prepare_results_dir
 from swarm.robot import saturate_wheels
 from swarm.scenario import Scenario
+
+log = logging.getLogger(__name__)
 
 EXIT_DONE, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 3
 
@@ -227,7 +230,7 @@ class SimServer:
 
     def _log(self, text: str) -> None:
         if not self.options.quiet:
-            print(f"sim_server: {text}", flush=True)
+            log.info("sim_server: %s", text)
 
     def _wait(self, ready, until_s: float) -> bool:
         """Wait (lock held by the caller) until ``ready()`` or the deadline or a stop request."""

@@ -240,9 +240,13 @@ def build_parser() -> argparse.ArgumentParser:
         "run scenarios, sweep experiments.",
     )
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    shown = OneLineArgumentParser(add_help=False)  # what every command shows besides its results
+    shown.add_argument("--quiet", action="store_true", help="no progress bar; only warnings and errors")
+    shown.add_argument("-v", "--verbose", action="count", default=0, help="also debug messages")
 
     run = commands.add_parser(
         "run",
+        parents=[shown],
         help="run one scenario and write its results directory",
         description="Run a scenario file and write scenario.yaml, trajectory.jsonl, metrics.json, "
         "convergence.png and animation.gif to the results directory. Exit 0 when the scenario's "
@@ -256,11 +260,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     run.add_argument("--model", help="override controller.model (exported model file)")
     run.add_argument("--duration", type=float, help="override sim.duration_s (simulated seconds)")
-    run.add_argument("--quiet", action="store_true", help="no progress bar")
     run.set_defaults(handler=cmd_run)
 
     report = commands.add_parser(
         "report",
+        parents=[shown],
         help="re-create metrics.json and the plots of a results directory from what is on disk",
         description="Read a results directory back (scenario.yaml, trajectory.jsonl up to its last complete "
         "line, events.jsonl) and rewrite metrics.json, convergence.png and animation.gif: for a run "
@@ -271,6 +275,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     sweep = commands.add_parser(
         "sweep",
+        parents=[shown],
         help="run a grid of topologies x sizes x seeds x controllers in the batched simulator",
         description="Run every (topology, N, controller) cell with SEEDS random starts in the batched "
         "kinematic simulator; write sweep.csv, sweep.md and plots of the convergence-time "
@@ -287,11 +292,11 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--v-max", type=float, help="wheel-speed limit (m/s)")
     sweep.add_argument("--out", default="runs/sweep", help="output directory (default: runs/sweep)")
     sweep.add_argument("--workers", type=int, help="processes each cell's starts are split over (default 1)")
-    sweep.add_argument("--quiet", action="store_true", help="no progress bar")
     sweep.set_defaults(handler=cmd_sweep)
 
     evaluate = commands.add_parser(
         "evaluate",
+        parents=[shown],
         help="compare a policy file with local consensus and the centralized expert on a grid",
         description="Run the model, local consensus and the centralized expert from the same random starts "
         "on every (topology, N) cell of the batched simulator (swarm sweep's starts, stopping rule and "
@@ -320,13 +325,13 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument(
         "--workers", type=int, default=1, help="processes each cell's starts are split over (default 1)"
     )
-    evaluate.add_argument("--quiet", action="store_true", help="no progress bar")
     evaluate.set_defaults(handler=cmd_evaluate)
 
     from swarm.train import ALGORITHMS
 
     train = commands.add_parser(
         "train",
+        parents=[shown],
         help="train a controller (behavioural cloning, reinforcement learning)",
         description="Train with the chosen algorithm; --config is a YAML file of the algorithm's config "
         "fields. Writes logs, checkpoints, plots and the trained model to the output directory.",
@@ -340,6 +345,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     collect = commands.add_parser(
         "collect",
+        parents=[shown],
         help="collect expert data for behavioural cloning in the batched simulator",
         description="Roll out the centralized expert (or local consensus) on a mix of graphs and sizes with "
         "every robot's start random, and record each robot's features (with the policy's message timing) "
@@ -355,16 +361,16 @@ def build_parser() -> argparse.ArgumentParser:
     collect.add_argument("--labels", choices=["centralized", "local_consensus"], help="the expert")
     collect.add_argument("--seed", type=int, help="random seed")
     collect.add_argument("--out", default="data/bc.npz", help="output file (default: data/bc.npz)")
-    collect.add_argument("--quiet", action="store_true", help="no progress bar")
     collect.set_defaults(handler=cmd_collect)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     from swarm.scenario import ScenarioError
-    from swarm.usage import one_line
+    from swarm.usage import configure_logging, one_line
 
     args = build_parser().parse_args(argv)
+    configure_logging(-1 if args.quiet else args.verbose)
     try:
         return args.handler(args)
     except (ScenarioError, UsageError) as error:

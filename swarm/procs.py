@@ -9,13 +9,17 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import logging
 import os
+import shlex
 import signal
 import socket
 import subprocess
 import sys
 import time
 from collections.abc import Iterable
+
+log = logging.getLogger(__name__)
 
 _PR_SET_PDEATHSIG = 1
 
@@ -93,16 +97,17 @@ class Supervisor:
         self.killed: list[int] = []
 
     def start(self, name: str, command: list[str], log_path: os.PathLike | str) -> subprocess.Popen:
-        with open(log_path, "wb") as log:
+        with open(log_path, "wb") as log_file:
             process = subprocess.Popen(
                 command,
                 stdin=subprocess.DEVNULL,
-                stdout=log,
+                stdout=log_file,
                 stderr=subprocess.STDOUT,
                 env=self.env,
                 start_new_session=True,
             )
         self.processes[name] = process
+        log.debug("started %s (pid %d, log %s): %s", name, process.pid, log_path, shlex.join(command))
         return process
 
     def poll_all(self) -> None:

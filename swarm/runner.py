@@ -6,6 +6,7 @@ server and one process per robot over Zenoh (``swarm.distributed``).
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +17,8 @@ from swarm.kinematic import KinematicSim
 from swarm.report import write_pictures
 from swarm.results import TrajectoryWriter, prepare_results_dir, summarize, write_metrics
 from swarm.scenario import Scenario, ScenarioError
+
+log = logging.getLogger(__name__)
 
 
 def build_controller(scenario: Scenario, scenario_path: Path | None = None) -> BatchedController:
@@ -88,6 +91,15 @@ def run_kinematic(
 def run_scenario(
     scenario: Scenario, out_dir: Path, scenario_path: Path | None = None, progress: bool = True
 ) -> dict:
+    log.debug(
+        "%s: %s engine, %d robots, %s graph, %s controller -> %s",
+        scenario.name,
+        scenario.sim.engine,
+        scenario.robots.count,
+        scenario.topology.kind,
+        scenario.controller.kind,
+        out_dir,
+    )
     if scenario.sim.engine == "kinematic":
         return run_kinematic(scenario, out_dir, scenario_path, progress)
     if scenario.sim.engine == "pybullet":

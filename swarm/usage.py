@@ -2,13 +2,15 @@
 
 ``OneLineArgumentParser`` is ``argparse.ArgumentParser`` whose errors are one line (argparse prints
 the whole usage first); :func:`one_line` turns any exception into one line for the user;
-:func:`silenced_stderr` keeps a C library's chatter (pybullet prints its build time on import) off it.
+:func:`silenced_stderr` keeps a C library's chatter (pybullet prints its build time on import) off it;
+:func:`configure_logging` is how a command line decides what the user sees of the library's log records.
 Standard library only: robot agents use it.
 """
 
 from __future__ import annotations
 
 import argparse
+import logging
 import os
 import sys
 from collections.abc import Iterator
@@ -47,3 +49,36 @@ def silenced_stderr() -> Iterator[None]:
     finally:
         os.dup2(saved, 2)
         os.close(saved)
+
+
+PROJECT_LOGGERS = ("swarm", "sim_server", "robot_agent")
+
+
+class _ConsoleHandler(logging.Handler):
+    """Log records as the command line's own lines: INFO and below on stdout, warnings and errors on
+    stderr, each its message alone (the library writes whole lines). The streams are looked up at
+    each record, so a redirected ``sys.stdout`` is honoured."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            stream = sys.stdout if record.levelno <= logging.INFO else sys.stderr
+            stream.write(self.format(record) + "\n")
+            stream.flush()
+        except Exception:
+            self.handleError(record)
+
+
+def configure_logging(verbosity: int = 0) -> None:
+    """What a command line shows of the project's log records (loggers ``swarm``, ``sim_server``,
+    ``robot_agent``): ``verbosity`` -1 (``--quiet``) warnings and errors only, 0 (default) also
+    information, 1 or more (``-v``) also debug records. Calling it again replaces the earlier setting
+    (commands run in-process, as tests do). Other libraries' loggers are left alone."""
+    level = logging.WARNING if verbosity < 0 else logging.INFO if verbosity == 0 else logging.DEBUG
+    for name in PROJECT_LOGGERS:
+        logger = logging.getLogger(name)
+        for handler in [h for h in logger.handlers if isinstance(h, _ConsoleHandler)]:
+            logger.removeHandler(handler)
+        handler = _ConsoleHandler()
+        handler.setFormatter(logging.Formatter("%(message)s"))
+        logger.addHandler(handler)
+        logger.setLevel(level)

@@ -24,10 +24,10 @@ Importable without torch, pybullet or numba: robot agents use it.
 from __future__ import annotations
 
 import json
+import logging
 import math
 import re
 import struct
-import sys
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, cast
@@ -51,7 +51,9 @@ MAX_MESSAGE_PAYLOAD = 64 + 8 * MAX_MESSAGE_DIM
 MAX_CONFIG_PAYLOAD = 256 * 2**20
 
 CALLBACK_ERRORS_PRINTED = 5
-"""Callback errors printed per process (all are counted)."""
+"""Callback errors logged per process (all are counted)."""
+
+log = logging.getLogger(__name__)
 
 _RUN_ID = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 
@@ -403,7 +405,7 @@ def session_config(
 
 def guarded(callback: Callable[[Any], None], stats: dict[str, Any], name: str) -> Callable[[Any], None]:
     """``callback`` for a Zenoh subscriber or queryable that never raises into Zenoh: an exception is
-    counted in ``stats["callback_errors"]`` and its first lines are printed, one line each (Zenoh
+    counted in ``stats["callback_errors"]`` and its first lines are logged as errors, one line each (Zenoh
     would print a traceback per sample and carry on; the count makes it visible in the results)."""
 
     def run(sample: Any) -> None:
@@ -412,7 +414,7 @@ def guarded(callback: Callable[[Any], None], stats: dict[str, Any], name: str) -
         except Exception as error:  # a bug or a sample no decoder foresaw: never the process's end
             stats["callback_errors"] = stats.get("callback_errors", 0) + 1
             if stats["callback_errors"] <= CALLBACK_ERRORS_PRINTED:
-                print(f"{name}: callback error: {type(error).__name__}: {error}", file=sys.stderr, flush=True)
+                log.error("%s: callback error: %s: %s", name, type(error).__name__, error)
 
     return run
 

@@ -7,6 +7,7 @@ script in a subprocess. Exit status: 0 success met, 1 ran but not met, 2 bad inp
 from __future__ import annotations
 
 import json
+import logging
 import shutil
 import subprocess
 import sysconfig
@@ -213,3 +214,25 @@ def test_installed_console_script(tmp_path):
     done = subprocess.run([swarm, "run", "--help"], capture_output=True, text=True, timeout=60)
     assert done.returncode == 0
     assert "usage: swarm run" in done.stdout
+
+
+def test_verbosity_decides_what_the_library_shows(tmp_path, capsys):
+    """The summary lines are the CLI's own and the same at every verbosity; -v adds the library's
+    debug records (here the runner's), --quiet keeps its information records off stdout."""
+    scenario = str(THESIS_SCENARIOS[0])
+    common = ["run", scenario, "--engine", "kinematic", "--duration", "1"]
+    outputs = {}
+    for name, flags in {"default": [], "verbose": ["-v"], "quiet": ["--quiet"]}.items():
+        main([*common, "--out", str(tmp_path / name), *flags])
+        outputs[name] = capsys.readouterr().out.replace(str(tmp_path / name), "OUT")
+    debug = [line for line in outputs["verbose"].splitlines() if "kinematic engine" in line]
+    assert len(debug) == 1 and debug[0].endswith("-> OUT")
+    assert outputs["default"] == outputs["quiet"] == "\n".join(
+        line for line in outputs["verbose"].splitlines() if line not in debug
+    ) + "\n"
+    assert "kinematic engine" not in outputs["default"]
+    logging.getLogger("swarm").info("an information record")
+    assert capsys.readouterr().out == ""  # --quiet was the last setting: warnings and errors only
+    main([*common, "--out", str(tmp_path / "again")])
+    logging.getLogger("swarm.anything").info("an information record")
+    assert capsys.readouterr().out.splitlines()[-1] == "an information record"

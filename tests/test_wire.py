@@ -315,7 +315,7 @@ def test_seeded_garbage_never_raises_and_what_passes_is_sane():
     assert accepted > 0  # some mutations (a changed digit of a float) stay valid: the check saw them
 
 
-def test_guarded_callbacks_count_errors_and_never_raise(capsys):
+def test_guarded_callbacks_count_errors_and_never_raise(caplog):
     stats: dict = {}
     seen = []
 
@@ -328,9 +328,10 @@ def test_guarded_callbacks_count_errors_and_never_raise(capsys):
     for sample in ["ok", "bad", "ok", *["bad"] * 10]:
         guarded(sample)  # never raises
     assert len(seen) == 13 and stats["callback_errors"] == 11
-    lines = capsys.readouterr().err.splitlines()
-    assert len(lines) == wire.CALLBACK_ERRORS_PRINTED  # the first few, one line each
-    assert lines[0] == "test: callback error: KeyError: 'no such field'"
+    records = [record for record in caplog.records if record.name == "swarm.wire"]
+    assert len(records) == wire.CALLBACK_ERRORS_PRINTED  # the first few, one line each, as errors
+    assert {record.levelname for record in records} == {"ERROR"}
+    assert records[0].getMessage() == "test: callback error: KeyError: 'no such field'"
 
 
 def test_session_config_takes_more_settings():

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import csv
 import json
+import logging
 import shutil
 import time
 from dataclasses import asdict, dataclass, field, replace
@@ -31,6 +32,8 @@ from swarm.features import saturate_local_velocity
 from swarm.policy import load_policy
 from swarm.robot import RobotParams, rotate, world_to_local
 from swarm.train import bc, preset_with_overrides
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -194,7 +197,7 @@ def train(config: DAggerConfig) -> Path:
             writer.writeheader()
             writer.writerows(rows)
         if config.progress:
-            print(f"dagger iteration {iteration}: {row}")
+            log.info("dagger iteration %d: %s", iteration, row)
     plot_curve(rows, out / "curve.png")
     chosen = load_policy(best[1])
     metadata, arrays = chosen.metadata, {}
