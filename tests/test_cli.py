@@ -227,9 +227,11 @@ def test_verbosity_decides_what_the_library_shows(tmp_path, capsys):
         outputs[name] = capsys.readouterr().out.replace(str(tmp_path / name), "OUT")
     debug = [line for line in outputs["verbose"].splitlines() if "kinematic engine" in line]
     assert len(debug) == 1 and debug[0].endswith("-> OUT")
-    assert outputs["default"] == outputs["quiet"] == "\n".join(
-        line for line in outputs["verbose"].splitlines() if line not in debug
-    ) + "\n"
+    assert (
+        outputs["default"]
+        == outputs["quiet"]
+        == "\n".join(line for line in outputs["verbose"].splitlines() if line not in debug) + "\n"
+    )
     assert "kinematic engine" not in outputs["default"]
     logging.getLogger("swarm").info("an information record")
     assert capsys.readouterr().out == ""  # --quiet was the last setting: warnings and errors only

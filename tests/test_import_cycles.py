@@ -107,8 +107,13 @@ def test_swarm_never_imports_the_processes():
     [
         ({"a": "import swarm.b\n", "b": "def f():\n    from swarm import a\n"}, True),  # function-level
         ({"a": "from swarm.b import x\n", "b": "from . import c\n", "c": "import swarm.a as z\n"}, True),
-        ({"a": "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from swarm.b import B\n",
-          "b": "from swarm import a\n"}, True),
+        (
+            {
+                "a": "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from swarm.b import B\n",
+                "b": "from swarm import a\n",
+            },
+            True,
+        ),
         ({"a": "import swarm.b\n", "b": "import numpy\nfrom swarm import c\n", "c": "import os\n"}, False),
     ],
 )
