@@ -232,7 +232,10 @@ def cmd_collect(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from swarm.topologies import kinds
     from swarm.usage import OneLineArgumentParser
+
+    grid_kinds = kinds(grid=True)
 
     parser = OneLineArgumentParser(
         prog="swarm",
@@ -282,7 +285,7 @@ def build_parser() -> argparse.ArgumentParser:
         "distributions (absolute and as a ratio to the lower bound of docs/design.md).",
     )
     sweep.add_argument("--config", help="YAML file with any SweepConfig fields")
-    sweep.add_argument("--topologies", nargs="+", help="complete cycle line star random disk")
+    sweep.add_argument("--topologies", nargs="+", help=" ".join(grid_kinds))
     sweep.add_argument("--sizes", nargs="+", type=int, help="robot counts N")
     sweep.add_argument("--seeds", type=int, help="random starts per cell")
     sweep.add_argument("--controllers", nargs="+", help="local_consensus centralized gnn")
@@ -304,7 +307,7 @@ def build_parser() -> argparse.ArgumentParser:
         "lower bound). Exit 1 when the model did not converge from every start.",
     )
     evaluate.add_argument("model", help="policy file (.npz)")
-    evaluate.add_argument("--topologies", nargs="+", help="complete cycle line star random disk")
+    evaluate.add_argument("--topologies", nargs="+", help=" ".join(grid_kinds))
     evaluate.add_argument("--sizes", nargs="+", type=int, help="robot counts N (default 6 12 24)")
     evaluate.add_argument("--seeds", type=int, help="random starts per cell (default 1000)")
     evaluate.add_argument(
@@ -353,7 +356,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     collect.add_argument("--preset", default="default", help="default | thesis (complete graph, N=6, M, Phi)")
     collect.add_argument("--samples", type=int, help="robot-ticks to record (default 1,000,000)")
-    collect.add_argument("--graphs", nargs="+", help="complete cycle line star random disk")
+    collect.add_argument("--graphs", nargs="+", help=" ".join(grid_kinds))
     collect.add_argument("--sizes", nargs="+", type=int, help="robot counts N")
     collect.add_argument("--hops", type=int, help="K: features Phi1..PhiK")
     collect.add_argument("--phi-source", choices=["m", "output"], help="Phi from neighbours' M or outputs")

@@ -34,7 +34,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from swarm import graphs, kernels, metrics
+from swarm import kernels, metrics, topologies
 from swarm.controllers import BatchedController
 from swarm.experts import complete_consensus_velocity
 from swarm.features import FeatureSpec, batched_features, messages, saturate_local_velocity
@@ -47,7 +47,7 @@ from swarm.sweep import connecting_radius
 FORMAT = "gnn-swarm-dataset"
 FORMAT_VERSION = 1
 METADATA_KEY = "__metadata__"
-GRAPH_KINDS = ("complete", "cycle", "line", "star", "random", "disk")
+GRAPH_KINDS = topologies.kinds(grid=True)  # a sample's ``graph`` is its kind's index here
 
 
 @dataclass(frozen=True)
@@ -81,9 +81,10 @@ class CollectConfig:
 
     def check(self) -> None:
         self.spec  # noqa: B018 (validates the feature options)
-        unknown = sorted(set(self.graphs) - set(GRAPH_KINDS))
+        known = topologies.kinds(grid=True)
+        unknown = sorted(set(self.graphs) - set(known))
         if unknown:
-            raise ValueError(f"graphs: unknown graph kind {unknown[0]!r}; choose from {list(GRAPH_KINDS)}")
+            raise ValueError(f"graphs: unknown graph kind {unknown[0]!r}; choose from {list(known)}")
         if self.labels not in ("centralized", "local_consensus"):
             raise ValueError(f"labels must be 'centralized' or 'local_consensus', got {self.labels!r}")
         if self.samples < 1 or min(self.sizes) < 2:
@@ -217,17 +218,17 @@ def episode_graphs(
     kind: str, count: int, batch: int, positions: np.ndarray, config: CollectConfig, rng: np.random.Generator
 ) -> tuple[np.ndarray | None, float | None]:
     """``(B, N, N)`` adjacency, or a disk radius for proximity graphs (connecting most starts)."""
-    if kind == "disk":
+    topology = topologies.get(kind)
+    if topology.proximity:
         factor = rng.uniform(*config.disk_radius_factor)
         return None, float(np.median([connecting_radius(start[None]) for start in positions]) * factor)
-    if kind == "random":
+    if topology.random:
         p = rng.uniform(*config.random_p, size=batch)
         seeds = rng.integers(0, 2**31, size=batch)
-        return np.stack(
-            [graphs.erdos_renyi(count, pi, int(s), connected=True) for pi, s in zip(p, seeds, strict=True)]
-        ), None
-    single = {"complete": graphs.complete, "cycle": graphs.cycle, "line": graphs.line, "star": graphs.star}
-    return np.broadcast_to(single[kind](count), (batch, count, count)), None
+        pairs = zip(p, seeds, strict=True)
+        params = [topologies.Params(float(pi), int(s), connected=True) for pi, s in pairs]
+        return np.stack([topology.fixed(count, one) for one in params]), None
+    return np.broadcast_to(topology.fixed(count), (batch, count, count)), None
 
 
 def rollout_batch(
@@ -301,7 +302,7 @@ def collect(config: CollectConfig, driver_for=None, progress: bool = True) -> Da
                 features[chosen],
                 labels[chosen],
                 np.full(share, count, dtype=np.uint16),
-                np.full(share, GRAPH_KINDS.index(kind), dtype=np.uint8),
+                np.full(share, topologies.grid_index(kind), dtype=np.uint8),
                 ticks[chosen],
             )
         )
@@ -319,7 +320,7 @@ def collect(config: CollectConfig, driver_for=None, progress: bool = True) -> Da
         "label_saturated": True,
         "robot": config.robot.model_dump(),
         "control_period_s": config.control_period_s,
-        "graphs": list(GRAPH_KINDS),
+        "graphs": list(topologies.kinds(grid=True)),
         "config": asdict(config),
     }
     return Dataset(features, labels, robot_count, graph, tick, metadata)

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from swarm.acl import write_credentials
-from swarm.faults import add_fault_results
+from swarm.faults import PROCESS_FAULTS, add_fault_results
 from swarm.procs import Supervisor, free_tcp_port
 from swarm.report import write_pictures
 from swarm.results import prepare_results_dir, read_trajectory, summarize, write_metrics
@@ -119,7 +119,6 @@ def _read_json(path: Path) -> dict:
         return {}
 
 
-PROCESS_FAULTS = ("kill_agent", "hang_agent", "restart_agent", "kill_server")
 """Fault kinds the runner does to the processes themselves (the link faults act in the agents)."""
 
 
@@ -294,7 +293,7 @@ def run_distributed(
     adjacency = scenario.adjacency()
     if adjacency is None:
         raise ScenarioError(
-            "topology.kind: 'disk' graphs are not supported by the pybullet engine yet"
+            f"topology.kind: '{scenario.topology.kind}' graphs are not supported by the pybullet engine yet"
             " (use --engine kinematic)"
         )
     _check_faults(scenario)

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from swarm import metrics
+from swarm import metrics, topologies
 from swarm.kinematic import KinematicSim
 from swarm.robot import RobotParams
 from swarm.sweep import (
@@ -43,7 +43,7 @@ COLOURS = {"centralized": "tab:green", "gnn": "tab:blue", "local_consensus": "ta
 class EvaluateConfig:
     model: str
     out: str = "runs/evaluate"
-    topologies: list[str] = field(default_factory=lambda: ["complete", "cycle", "line", "star", "random"])
+    topologies: list[str] = field(default_factory=lambda: list(topologies.kinds(default_grid=True)))
     sizes: list[int] = field(default_factory=lambda: [6, 12, 24])
     seeds: int = 1000
     limits: dict[int | str, int] = field(default_factory=dict)  # N or "topology:N" -> first starts

@@ -40,12 +40,40 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
-LINK_FAULTS = ("drop_link", "restore_link", "packet_loss", "delay")
-PROCESS_FAULTS = ("kill_agent", "hang_agent", "restart_agent", "kill_server")
+
+@dataclass(frozen=True)
+class FaultKind:
+    """One kind of fault: a ``link`` fault acts in the receiving robots (:class:`LinkFaults`), a
+    ``process`` fault is done by the runner of the pybullet engine (``swarm.distributed``). Keys by
+    their short scenario names; every other fault key is refused for that kind."""
+
+    kind: str
+    family: Literal["link", "process"]
+    required: tuple[str, ...]
+    optional: tuple[str, ...] = ()
+
+
+FAULT_KINDS: dict[str, FaultKind] = {
+    fault.kind: fault
+    for fault in (
+        FaultKind("drop_link", "link", ("at", "link"), ("direction",)),
+        FaultKind("restore_link", "link", ("at", "link"), ("direction",)),
+        FaultKind("packet_loss", "link", ("p",), ("link", "direction", "at", "until")),
+        FaultKind("delay", "link", ("ticks",), ("link", "direction", "at", "until")),
+        FaultKind("kill_agent", "process", ("at", "robot")),
+        FaultKind("hang_agent", "process", ("at", "robot", "duration")),
+        FaultKind("restart_agent", "process", ("at", "robot")),
+        FaultKind("kill_server", "process", ("at",)),
+    )
+}
+"""The registry of fault kinds (README, "Faults"): the scenario schema and both engines read it."""
+
+LINK_FAULTS = tuple(kind for kind, fault in FAULT_KINDS.items() if fault.family == "link")
+PROCESS_FAULTS = tuple(kind for kind, fault in FAULT_KINDS.items() if fault.family == "process")
 
 HEARD, DROPPED, LOST = 0, 1, 2
 """Why a message did (not) reach its receiver: :meth:`LinkFaults.reason`."""

@@ -23,12 +23,11 @@ from pydantic import (
     model_validator,
 )
 
-from swarm import graphs
+from swarm import graphs, metrics, topologies
+from swarm.faults import FAULT_KINDS
 from swarm.robot import RobotParams
 
-TopologyKind = Literal["complete", "cycle", "line", "star", "random", "disk", "matrix"]
 ControllerKind = Literal["gnn", "local_consensus", "centralized"]
-MetricName = Literal["max_pairwise", "spread", "thesis_disk"]
 
 
 DEFAULT_MODEL_NAME = "gnn_default.npz"  # in <project root>/models, for controller gnn without a model
@@ -40,6 +39,14 @@ class ScenarioError(ValueError):
 
 class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", populate_by_name=True)
+
+
+def _one_of(value: str, registered: tuple[str, ...] | list[str]) -> str:
+    """``value`` if it is registered, else the error pydantic gives a Literal field."""
+    if value not in registered:
+        *first, last = (repr(name) for name in registered)
+        raise ValueError(f"Input should be {', '.join(first)} or {last}")
+    return value
 
 
 class RandomInit(_Strict):
@@ -78,12 +85,19 @@ class RobotsSpec(_Strict):
 
 
 class TopologySpec(_Strict):
-    kind: TopologyKind
+    """The scenario's graph: one kind of ``swarm.topologies`` and the parameters it reads."""
+
+    kind: str
     p: float | None = Field(None, ge=0, le=1, description="edge probability (random)")
     seed: int = 0
     connected: bool = False
     radius_m: float | None = Field(None, gt=0, validation_alias=AliasChoices("radius_m", "radius"))
     adjacency: list[list[float]] | None = None
+
+    @field_validator("kind")
+    @classmethod
+    def _registered(cls, value: str) -> str:
+        return _one_of(value, topologies.kinds())
 
     @field_validator("adjacency")
     @classmethod
@@ -94,15 +108,23 @@ class TopologySpec(_Strict):
 
     @model_validator(mode="after")
     def _kind_parameters(self) -> TopologySpec:
-        if self.kind == "random" and self.p is None:
-            raise ValueError("kind 'random' needs 'p'")
-        if self.kind == "disk" and self.radius_m is None:
-            raise ValueError("kind 'disk' needs 'radius'")
-        if self.kind == "matrix" and self.adjacency is None:
-            raise ValueError("kind 'matrix' needs 'adjacency'")
-        if self.kind != "matrix" and self.adjacency is not None:
-            raise ValueError(f"'adjacency' is only for kind 'matrix', not '{self.kind}'")
+        required = topologies.get(self.kind).requires
+        for attribute, key in required:
+            if getattr(self, attribute) is None:
+                raise ValueError(f"kind '{self.kind}' needs '{key}'")
+        if self.adjacency is not None and ("adjacency", "adjacency") not in required:
+            takes = " or ".join(repr(kind) for kind in topologies.kinds() if self._takes_matrix(kind))
+            raise ValueError(f"'adjacency' is only for kind {takes}, not '{self.kind}'")
         return self
+
+    @staticmethod
+    def _takes_matrix(kind: str) -> bool:
+        return ("adjacency", "adjacency") in topologies.get(kind).requires
+
+    @property
+    def proximity(self) -> bool:
+        """No fixed graph: recomputed from the positions (``radius_m``) every tick."""
+        return topologies.get(self.kind).proximity
 
 
 class ControllerSpec(_Strict):
@@ -162,17 +184,9 @@ class SimSpec(_Strict):
 
 
 FAULT_KEYS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
-    # kind: (required keys, optional keys); every other fault key is refused for that kind
-    "drop_link": (("at", "link"), ("direction",)),
-    "restore_link": (("at", "link"), ("direction",)),
-    "packet_loss": (("p",), ("link", "direction", "at", "until")),
-    "delay": (("ticks",), ("link", "direction", "at", "until")),
-    "kill_agent": (("at", "robot"), ()),
-    "restart_agent": (("at", "robot"), ()),
-    "hang_agent": (("at", "robot", "duration"), ()),
-    "kill_server": (("at",), ()),
+    kind: (fault.required, fault.optional) for kind, fault in FAULT_KINDS.items()
 }
-"""Which keys each fault kind takes (README, "Faults"); keys by their short names."""
+"""Which keys each fault kind takes (``swarm.faults.FAULT_KINDS``); keys by their short names."""
 
 _FAULT_KEY_NAMES = {
     "at": ("at", "at_s"),
@@ -195,16 +209,7 @@ class FaultSpec(_Strict):
     ``delay``) act in the receiving robots (``swarm.faults``); process faults (``kill_agent``,
     ``hang_agent``, ``restart_agent``, ``kill_server``) are done by the runner of the pybullet engine."""
 
-    kind: Literal[
-        "drop_link",
-        "restore_link",
-        "packet_loss",
-        "delay",
-        "kill_agent",
-        "hang_agent",
-        "restart_agent",
-        "kill_server",
-    ]
+    kind: str  # a key of swarm.faults.FAULT_KINDS
     at_s: float | None = Field(None, ge=0, validation_alias=AliasChoices("at_s", "at"))
     until_s: float | None = Field(None, gt=0, validation_alias=AliasChoices("until_s", "until"))
     link: tuple[int, int] | None = None
@@ -217,6 +222,11 @@ class FaultSpec(_Strict):
     )
     robot: int | None = Field(None, ge=0)
     duration_s: float | None = Field(None, gt=0, validation_alias=AliasChoices("duration_s", "duration"))
+
+    @field_validator("kind")
+    @classmethod
+    def _registered(cls, value: str) -> str:
+        return _one_of(value, list(FAULT_KINDS))
 
     @model_validator(mode="before")
     @classmethod
@@ -265,10 +275,15 @@ class EngineThresholds(_Strict):
 
 
 class SuccessSpec(_Strict):
-    metric: MetricName = "max_pairwise"
+    metric: str = "max_pairwise"  # a key of swarm.metrics.METRICS
     threshold: float | EngineThresholds = Field(
         0.2, description="metric value in metres that counts as consensus, or one per engine"
     )
+
+    @field_validator("metric")
+    @classmethod
+    def _registered(cls, value: str) -> str:
+        return _one_of(value, list(metrics.METRICS))
 
     @field_validator("threshold")
     @classmethod
@@ -314,7 +329,7 @@ class Scenario(_Strict):
             raise KeyedError(
                 ("sim", "acl"), "the centralized controller needs every pose; access control is per robot"
             )
-        if self.sim.acl and self.topology.kind == "disk":
+        if self.sim.acl and self.topology.proximity:
             raise KeyedError(("sim", "acl"), "access control needs a fixed graph, not a disk topology")
         return self
 
@@ -389,21 +404,10 @@ class Scenario(_Strict):
 
 
 def fixed_adjacency(topology: TopologySpec, count: int, seed: int | None = None) -> np.ndarray | None:
-    """Adjacency of a fixed topology; ``seed`` overrides the random graph's seed."""
-    kind = topology.kind
-    if kind == "disk":
-        return None
-    if kind == "matrix":
-        assert topology.adjacency is not None  # TopologySpec's check
-        return graphs.validate_adjacency(topology.adjacency)
-    if kind == "random":
-        assert topology.p is not None  # TopologySpec's check
-        return graphs.erdos_renyi(
-            count, topology.p, topology.seed if seed is None else seed, connected=topology.connected
-        )
-    return {"complete": graphs.complete, "cycle": graphs.cycle, "line": graphs.line, "star": graphs.star}[
-        kind
-    ](count)
+    """Adjacency of a fixed topology (None for a proximity graph); ``seed`` overrides a random
+    graph's seed."""
+    params = topology if seed is None else topology.model_copy(update={"seed": seed})
+    return topologies.build(topology.kind, count, params)
 
 
 def _location(loc: tuple) -> str:

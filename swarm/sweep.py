@@ -13,27 +13,25 @@ from __future__ import annotations
 import csv
 import hashlib
 import json
-import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
 
-from swarm import graphs, kernels, metrics
+from swarm import graphs, kernels, metrics, topologies
 from swarm.controllers import BatchedController, Centralized, LocalConsensus
 from swarm.initial_poses import box_for, random_poses
 from swarm.kinematic import KinematicSim
 from swarm.robot import RobotParams
 from swarm.scenario import ScenarioError
 
-TOPOLOGIES = ("complete", "cycle", "line", "star", "random", "disk")
 CONTROLLERS = ("local_consensus", "centralized", "gnn")
 
 
 @dataclass(frozen=True)
 class SweepConfig:
-    topologies: list[str] = field(default_factory=lambda: ["complete", "cycle", "line", "star", "random"])
+    topologies: list[str] = field(default_factory=lambda: list(topologies.kinds(default_grid=True)))
     sizes: list[int] = field(default_factory=lambda: [6, 12, 24, 50, 100])
     seeds: int = 1000
     controllers: list[str] = field(default_factory=lambda: ["local_consensus", "centralized"])
@@ -66,7 +64,7 @@ class SweepConfig:
 
     def check(self, source: str) -> None:
         for topology in self.topologies:
-            if topology not in TOPOLOGIES:
+            if topology not in topologies.kinds(grid=True):
                 raise ScenarioError(f"{source}: topologies: unknown topology '{topology}'")
         for controller in self.controllers:
             if controller not in CONTROLLERS:
@@ -87,22 +85,22 @@ class SweepConfig:
                 raise ScenarioError(f"{source}: {name}: must be positive")
 
 
-def random_edge_probability(count: int) -> float:
-    return min(1.0, 1.5 * math.log(count) / count)
+random_edge_probability = topologies.default_edge_probability
 
 
 def cell_graphs(
     config: SweepConfig, topology: str, count: int, rng: np.random.Generator
 ) -> np.ndarray | None:
-    """``(B, N, N)`` adjacency for one cell; None for disk graphs."""
-    if topology == "disk":
+    """``(B, N, N)`` adjacency for one cell (a fresh connected graph per start for a random kind);
+    None for proximity graphs."""
+    kind = topologies.get(topology)
+    if kind.proximity:
         return None
-    if topology == "random":
-        p = config.random_p if config.random_p is not None else random_edge_probability(count)
+    if kind.random:
         seeds = rng.integers(0, 2**31, size=config.seeds)
-        return np.stack([graphs.erdos_renyi(count, p, int(seed), connected=True) for seed in seeds])
-    single = {"complete": graphs.complete, "cycle": graphs.cycle, "line": graphs.line, "star": graphs.star}
-    return np.broadcast_to(single[topology](count), (config.seeds, count, count))
+        params = [topologies.Params(p=config.random_p, seed=int(seed), connected=True) for seed in seeds]
+        return np.stack([kind.fixed(count, one) for one in params])
+    return np.broadcast_to(kind.fixed(count), (config.seeds, count, count))
 
 
 def connecting_radius(positions: np.ndarray) -> float:
@@ -208,7 +206,7 @@ def cell_starts(
 ) -> tuple[np.ndarray, np.ndarray | None, float | None]:
     """The starts of a cell: poses ``(B, N, 3)``, adjacency ``(B, N, N)`` (None on disk graphs) and
     the disk radius (None on fixed graphs); the first ``first_starts`` when that is set."""
-    cell_seed = np.random.SeedSequence([config.seed, TOPOLOGIES.index(topology), count])
+    cell_seed = np.random.SeedSequence([config.seed, topologies.grid_index(topology), count])
     rng = np.random.default_rng(cell_seed)
     box = box_for(count)
     poses = random_poses(rng, config.seeds, count, box, box, config.min_separation_m)
@@ -303,7 +301,7 @@ def run_cell(config: SweepConfig, topology: str, count: int, controller: str, on
         lambda2 = np.array(
             [graphs.algebraic_connectivity(graphs.disk(start[:, :2], disk_radius)) for start in poses]
         )
-    elif topology == "random":
+    elif topologies.get(topology).random:
         lambda2 = np.array([graphs.algebraic_connectivity(matrix) for matrix in adjacency])
     else:
         lambda2 = np.full(starts, graphs.algebraic_connectivity(adjacency[0]))

@@ -48,7 +48,7 @@ from typing import Literal
 import numpy as np
 from gymnasium import spaces
 
-from swarm import graphs, kernels
+from swarm import kernels, topologies
 from swarm.experts import complete_consensus_velocity
 from swarm.features import FeatureSpec, batched_features, messages, saturate_local_velocity
 from swarm.initial_poses import box_for, random_poses
@@ -57,7 +57,6 @@ from swarm.links import Links
 from swarm.metrics import max_pairwise
 from swarm.robot import RobotParams, controlled_point, rotate
 
-TOPOLOGIES = ("complete", "cycle", "line", "star", "random")
 # Discrete actions: unit point velocities (forward "up", backward "down", left, right) in the action frame.
 DISCRETE_ACTIONS = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
 
@@ -86,7 +85,7 @@ class ConsensusConfig:
 
     def __post_init__(self) -> None:
         choices = {
-            "topology": TOPOLOGIES,
+            "topology": topologies.kinds(grid=True, fixed=True),
             "learners": ("all", "first"),
             "others": ("local_consensus", "centralized"),
             "actions": ("continuous", "discrete"),
@@ -252,11 +251,8 @@ class ConsensusVectorEnv:
         """One episode's start: poses ``(N, 3)`` and graph ``(N, N)``."""
         config = self.config
         poses = random_poses(rng, 1, config.robots, self.box_m, self.box_m, config.min_separation_m)[0]
-        if config.topology == "random":
-            seed = int(rng.integers(2**31))
-            adjacency = graphs.erdos_renyi(config.robots, config.random_p, seed, connected=True)
-        else:
-            adjacency = getattr(graphs, config.topology)(config.robots)
+        adjacency = topologies.draw(config.topology, config.robots, rng, p=config.random_p)
+        assert adjacency is not None  # ConsensusConfig.check: a fixed kind
         return poses, adjacency
 
     def reset(

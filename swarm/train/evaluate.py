@@ -16,7 +16,8 @@ from swarm.controllers import BatchedController, LocalConsensus
 from swarm.initial_poses import box_for, random_poses
 from swarm.kinematic import KinematicSim
 from swarm.robot import RobotParams
-from swarm.sweep import TOPOLOGIES, SweepConfig, cell_graphs, connecting_radius, converge_batch
+from swarm.sweep import SweepConfig, cell_graphs, connecting_radius, converge_batch
+from swarm.topologies import grid_index
 
 ControllerFactory = Callable[[RobotParams, int], BatchedController]
 
@@ -51,7 +52,7 @@ def compare(
 
         cells = tqdm(cells, desc="evaluate", unit="cell")
     for topology, count in cells:
-        rng = np.random.default_rng(np.random.SeedSequence([seed, TOPOLOGIES.index(topology), count]))
+        rng = np.random.default_rng(np.random.SeedSequence([seed, grid_index(topology), count]))
         box = box_for(count)
         poses = random_poses(rng, seeds, count, box, box, config.min_separation_m)
         adjacency = cell_graphs(config, topology, count, rng)

@@ -78,7 +78,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from swarm import graphs
+from swarm import topologies
 from swarm.features import FeatureSpec
 from swarm.initial_poses import box_for, random_poses
 from swarm.models import build_model
@@ -88,6 +88,8 @@ from swarm.robot import RobotParams
 from swarm.train import preset_with_overrides
 
 GRAPH_KINDS = ("cycle", "line", "random", "complete", "star")
+"""The kinds PPO trains on, in the order of the critic's one-hot graph-kind input (a trained critic
+depends on it); each is built by ``swarm.topologies``."""
 
 
 @dataclass(frozen=True)
@@ -322,11 +324,8 @@ class EpisodeSampler:
         count = int(self.rng.integers(self.config.sizes[0], self.config.sizes[1] + 1))
         box = box_for(count)
         poses = random_poses(self.rng, 1, count, box, box, self.config.min_separation_m)[0]
-        if kind == "random":
-            p = min(1.0, 1.5 * math.log(count) / count)
-            adjacency = graphs.erdos_renyi(count, p, int(self.rng.integers(2**31)), connected=True)
-        else:
-            adjacency = getattr(graphs, kind)(count)
+        adjacency = topologies.draw(kind, count, self.rng)  # random: p = topologies.default_edge_probability
+        assert adjacency is not None  # GRAPH_KINDS are fixed graphs
         return poses, adjacency, GRAPH_KINDS.index(kind)
 
 
