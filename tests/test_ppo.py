@@ -213,3 +213,39 @@ def test_stop_after_exports_the_last_iterate(tmp_path):
     last = torch.load(tmp_path / "checkpoints" / "last.pt", weights_only=False)["model"]
     for name, value in policy_arrays(policy).items():
         np.testing.assert_array_equal(value, last[name].numpy())
+
+
+def test_gae_by_hand():
+    """gamma = lambda = 0.5 (gamma lambda = 0.25), T = 3, two swarms; every number below is worked by
+    hand (dyadic, so exact in binary)."""
+    t = lambda *rows: torch.tensor(rows, dtype=torch.float64)  # noqa: E731  (T, B)
+    rewards, values = t([1, 1], [2, 1], [3, 1]), t([0.5, 2], [1, 2], [2, 2])
+    next_value = torch.tensor([4.0, 10.0], dtype=torch.float64)  # swarm 1 was reset: 10 must not count
+    terminated, truncated = t([0, 1], [0, 0], [0, 0]), t([0, 0], [0, 0], [0, 1])  # 1: ends at t=0 and t=2
+    final = t([0, 0], [0, 0], [0, 8])  # value of the state swarm 1 timed out in
+    # swarm 0 (no end): deltas 1 + .5*1 - .5 = 1, 2 + .5*2 - 1 = 2, 3 + .5*4 - 2 = 3;
+    #   A2 = 3, A1 = 2 + .25*3 = 2.75, A0 = 1 + .25*2.75 = 1.6875; returns A + V = 2.1875, 3.75, 5
+    # swarm 1, time-out as terminal: A2 = 1 - 2 = -1, A1 = (1 + .5*2 - 2) + .25*(-1) = -0.25,
+    #   A0 = 1 - 2 = -1 (terminated: the recursion stops there)
+    zeros = torch.zeros_like(final)
+    advantages, returns = ppo.gae(rewards, values, next_value, terminated, truncated, zeros, 0.5, 0.5)
+    assert advantages.tolist() == [[1.6875, -1.0], [2.75, -0.25], [3.0, -1.0]]
+    assert returns.tolist() == [[2.1875, 1.0], [3.75, 1.75], [5.0, 1.0]]
+    # bootstrapping the time-out from its state's value 8: A2 = 1 + .5*8 - 2 = 3, A1 = 0 + .25*3 = 0.75
+    advantages, _ = ppo.gae(rewards, values, next_value, terminated, truncated, final, 0.5, 0.5)
+    assert advantages[:, 1].tolist() == [-1.0, 0.75, 3.0]
+    assert advantages[:, 0].tolist() == [1.6875, 2.75, 3.0]  # the other swarm is untouched
+
+
+def test_shaped_reward_by_hand():
+    """v_max 0.5 m/s: Phi = -diameter / (2 * 0.5) = -diameter (s); dt 0.05 s, gamma 0.5."""
+    before = ppo.potential(torch.tensor([2.0, 2.0, 2.0]), 0.5)
+    after = ppo.potential(torch.tensor([1.0, 1.0, 1.0]), 0.5)
+    assert before.tolist() == [-2.0, -2.0, -2.0] and after.tolist() == [-1.0, -1.0, -1.0]
+    terminated = torch.tensor([False, True, False])
+    reward, used = ppo.shaped_reward(before, after, terminated, 0.05, 0.5, 1.0)
+    # running: -0.05 + (0.5 * -1 - (-2)) = 1.45; terminal: Phi = 0, -0.05 + (0 + 2) = 1.95
+    assert reward[:2].tolist() == pytest.approx([1.45, 1.95], abs=1e-6)
+    assert used.tolist() == [-1.0, 0.0, -1.0]
+    reward, _ = ppo.shaped_reward(before, after, terminated, 0.05, 0.5, 0.0)
+    assert reward.tolist() == pytest.approx([-0.05] * 3)  # no shaping: 20 ticks return -1 s, minus the time

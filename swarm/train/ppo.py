@@ -1,8 +1,9 @@
 """PPO fine-tuning of the gated graph-filter GNN for fast consensus under the speed limit.
 
-Reads top to bottom: hyperparameters, the batched torch swarm (the environment), the policy and
-the critic, the rollout, the PPO update, evaluation, the loop (checkpoints, CSV and TensorBoard
-logs, progress bar, learning-curve plot) and the export to the torch-free policy file
+Reads top to bottom: hyperparameters (one dataclass, ``PPOConfig``), the batched torch swarm (the
+environment), the policy and the critic, evaluation, the shaped reward and GAE, the PPO loss, and
+the loop in labelled phases (learning rates, rollout, advantages, update, logs and checkpoints),
+then the export to the torch-free policy file
 (``swarm.policy``, the same exporter as behavioural cloning). Run:
 ``swarm train --algo ppo --out runs/ppo`` (``--preset gpu`` for the long run,
 ``--config FILE``: YAML with any ``PPOConfig`` field).
@@ -45,8 +46,10 @@ state is 0). Without shaping the undiscounted return is minus the convergence ti
 is potential-based (Ng et al. 1999), so it leaves the optimal policy unchanged, and its potential
 is minus a lower bound on the time still needed (the diameter shrinks at most ``2 v_max``), so the
 shaped return is minus the time lost over that bound, and rewards reaching it fast step by step.
-Episodes that reach ``max_episode_s`` without consensus are truncated (counted as done; with the
-gated filter, which converges on every connected graph, this is rare and logged).
+Episodes that reach ``max_episode_s`` without consensus are truncated (rare with the gated filter,
+which converges on every connected graph, and logged); GAE (:func:`gae`) treats a time-out as
+terminal by default, or bootstraps from the value of the state it stopped in
+(``bootstrap_time_outs``).
 
 **Episodes**: a graph kind drawn with the ``graphs`` weights (cycle, line, random-connected G(N, p)
 with p = 1.5 ln N / N, complete, star), N uniform in ``sizes``, robots uniform in
@@ -111,6 +114,9 @@ class PPOConfig:
     min_separation_m: float = 0.4
     max_episode_s: float = 120.0
     shaping: float = 1.0  # weight of the potential-based term (0: reward is -dt per tick)
+    # a time-out (max_episode_s) ends the episode; False: as if terminal (how models/gnn_ppo.npz was
+    # trained), True: GAE bootstraps from the value of the state it stopped in
+    bootstrap_time_outs: bool = False
     # PPO
     num_envs: int = 64
     rollout_steps: int = 64
@@ -328,6 +334,11 @@ class EpisodeSampler:
         assert adjacency is not None  # GRAPH_KINDS are fixed graphs
         return poses, adjacency, GRAPH_KINDS.index(kind)
 
+    def start(self, env: TorchSwarm, envs: list[int]) -> None:
+        """New episodes in swarms ``envs`` of ``env``."""
+        drawn = [self.draw() for _ in envs]
+        env.load(envs, [d[0] for d in drawn], [d[1] for d in drawn], [d[2] for d in drawn])
+
 
 # -- policy and critic ----------------------------------------------------------------------------
 
@@ -491,6 +502,62 @@ def eval_score(row: dict) -> float:
     return float(np.mean(np.log(values)))
 
 
+# -- reward and advantages -------------------------------------------------------------------------
+
+
+def potential(diameter_m: torch.Tensor, v_max_mps: float) -> torch.Tensor:
+    """``Phi(s) = -max_pairwise(s) / (2 v_max)`` (s): minus a lower bound on the time consensus still
+    needs, since the diameter shrinks at most ``2 v_max``."""
+    return -diameter_m / (2 * v_max_mps)
+
+
+def shaped_reward(
+    before: torch.Tensor,
+    after: torch.Tensor,
+    terminated: torch.Tensor,
+    dt_s: float,
+    gamma: float,
+    shaping: float,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``r_t = -dt + shaping * (gamma * Phi(s_{t+1}) - Phi(s_t))`` with ``Phi`` of a terminal state 0
+    (Ng et al. 1999); ``before``, ``after``: the potentials of s_t and s_{t+1}. Returns the reward
+    and ``Phi(s_{t+1})`` as used (0 where terminated)."""
+    after = torch.where(terminated, torch.zeros_like(after), after)
+    return -dt_s + shaping * (gamma * after - before), after
+
+
+def gae(
+    rewards: torch.Tensor,
+    values: torch.Tensor,
+    next_value: torch.Tensor,
+    terminated: torch.Tensor,
+    truncated: torch.Tensor,
+    final_values: torch.Tensor,
+    gamma: float,
+    gae_lambda: float,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Generalized advantage estimation (Schulman et al. 2016) over a rollout of ``T`` steps of ``B``
+    environments, every argument ``(T, B)`` but ``next_value (B)``, the value of the state after the
+    last step. An episode ends after step t when ``terminated[t]`` (no future: bootstrap 0) or
+    ``truncated[t]`` (a time-out: bootstrap ``final_values[t]``, the value of the state it stopped
+    in, before the reset; zeros treat a time-out as terminal). The recursion
+    ``A_t = delta_t + gamma lambda (1 - ended_t) A_{t+1}`` with
+    ``delta_t = r_t + gamma V_boot(t) - V(s_t)`` never crosses an episode's end. Returns the
+    advantages and the value targets ``A + V``."""
+    steps = rewards.shape[0]
+    ended = torch.maximum(terminated, truncated)
+    advantages = torch.zeros_like(rewards)
+    last = torch.zeros_like(next_value)
+    for t in reversed(range(steps)):
+        following = next_value if t == steps - 1 else values[t + 1]
+        alive = 1.0 - ended[t]
+        bootstrap = following * alive + final_values[t] * truncated[t]
+        delta = rewards[t] + gamma * bootstrap - values[t]
+        last = delta + gamma * gae_lambda * alive * last
+        advantages[t] = last
+    return advantages, advantages + values
+
+
 # -- the loop ---------------------------------------------------------------------------------------
 
 
@@ -533,8 +600,111 @@ def write_csv(path: Path, rows: list[dict]) -> None:
         writer.writerows(rows)
 
 
+def anneal_lr(
+    optimizer: torch.optim.Optimizer, config: PPOConfig, update: int, last_kl: float | None
+) -> None:
+    """``linear``: both learning rates from their base to 0 over ``updates``; ``adaptive``: the
+    policy's by 1.5 after an update whose approx KL left ``[target_kl / 1.5, 1.5 target_kl]``."""
+    if config.lr_schedule == "linear":
+        for group, base in zip(optimizer.param_groups, (config.lr, config.critic_lr), strict=True):
+            group["lr"] = base * (1.0 - (update - 1) / config.updates)
+    elif last_kl is not None and update > config.critic_warmup_updates + 1:
+        group = optimizer.param_groups[0]
+        if last_kl < config.target_kl / 1.5:
+            group["lr"] = min(group["lr"] * 1.5, 30 * config.lr)
+        elif last_kl > config.target_kl * 1.5:
+            group["lr"] = max(group["lr"] / 1.5, config.lr / 30)
+
+
+def ppo_loss(
+    actor: Actor,
+    critic: Critic,
+    batch: dict[str, torch.Tensor],
+    advantages: torch.Tensor,
+    returns: torch.Tensor,
+    config: PPOConfig,
+    train_policy: bool,
+) -> tuple[torch.Tensor, dict[str, float]]:
+    """One minibatch: the clipped surrogate over the robots that exist (padding skipped), the value
+    loss (optionally clipped) and the entropy bonus of the state-free Gaussian."""
+    valid = batch["valid"]
+    adv = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+    value = critic(batch["critic_robots"], valid, batch["critic_summary"])
+    if config.clip_value:
+        old = batch["values"]
+        clipped = old + (value - old).clamp(-config.clip, config.clip)
+        value_loss = 0.5 * torch.max((value - returns) ** 2, (clipped - returns) ** 2)
+    else:
+        value_loss = 0.5 * (value - returns) ** 2
+    value_loss = value_loss.mean()
+    loss = config.value_coef * value_loss
+    stats = {"value_loss": float(value_loss.detach())}
+    if train_policy:
+        dist = actor.distribution(batch["features"][valid])
+        logp = dist.log_prob(batch["actions"][valid]).sum(-1)
+        log_ratio = logp - batch["logp"][valid]
+        ratio = log_ratio.exp()
+        robot_adv = adv[:, None].expand_as(valid)[valid]
+        surrogate = torch.max(-robot_adv * ratio, -robot_adv * ratio.clamp(1 - config.clip, 1 + config.clip))
+        policy_loss = surrogate.mean()
+        entropy = actor.log_std.sum() + math.log(2 * math.pi * math.e)  # per robot, state-free
+        loss = loss + policy_loss - config.entropy_coef * entropy
+        with torch.no_grad():
+            kl = ((ratio - 1) - log_ratio).mean()
+            clipped_share = ((ratio - 1).abs() > config.clip).to(ratio.dtype).mean()
+        stats.update(
+            policy_loss=float(policy_loss.detach()), approx_kl=float(kl), clip_fraction=float(clipped_share)
+        )
+    return loss, stats
+
+
+def make_checkpoint(
+    gnn: GatedGraphFilter,
+    actor: Actor,
+    critic: Critic,
+    optimizer: torch.optim.Optimizer,
+    update: int,
+    config: PPOConfig,
+) -> dict:
+    return {
+        "model_config": gnn.config(),
+        "model": gnn.state_dict(),
+        "actor": actor.state_dict(),
+        "critic": critic.state_dict(),
+        "optimizer": optimizer.state_dict(),
+        "update": update,
+        "ppo_config": asdict(config),
+    }
+
+
+def evaluate_and_log(
+    actor: Actor,
+    config: PPOConfig,
+    robot: RobotParams,
+    device,
+    dtype,
+    update: int,
+    env_steps: int,
+    eval_rows: list[dict],
+    out: Path,
+    writer,
+) -> float:
+    """Evaluate the deterministic policy, append its row to ``eval.csv`` (and TensorBoard); its score."""
+    row: dict[str, Any] = {"update": update, "env_steps": env_steps}
+    row.update(evaluate(actor, config, robot, device, dtype))
+    row["score"] = eval_score(row)
+    eval_rows.append(row)
+    write_csv(out / "eval.csv", eval_rows)
+    if writer is not None:
+        for key, value in row.items():
+            if key.endswith("_median_s") and value is not None:
+                writer.add_scalar(f"eval/{key}", value, env_steps)
+    return row["score"]
+
+
 def train(config: PPOConfig) -> Path:
     """Fine-tune with PPO; returns the exported policy file (the best iterate on the eval cells)."""
+    # -- setup: seeds, models, optimizer, environment, rollout buffers, logs ----------------------------
     out = Path(config.out)
     (out / "checkpoints").mkdir(parents=True, exist_ok=True)
     (out / "config.json").write_text(json.dumps(asdict(config), indent=2) + "\n")
@@ -556,29 +726,26 @@ def train(config: PPOConfig) -> Path:
         [{"params": actor_params, "lr": config.lr}, {"params": critic.parameters(), "lr": config.critic_lr}],
         eps=1e-5,
     )
-    base_lrs = [config.lr, config.critic_lr]
 
     B, T, n_max, dt = config.num_envs, config.rollout_steps, config.sizes[1], config.control_period_s
     env = TorchSwarm(B, n_max, hops, robot, dt, device, dtype)
     sampler = EpisodeSampler(config, rng)
-
-    def reset(envs: list[int]) -> None:
-        drawn = [sampler.draw() for _ in envs]
-        env.load(envs, [d[0] for d in drawn], [d[1] for d in drawn], [d[2] for d in drawn])
-
-    reset(list(range(B)))
+    sampler.start(env, list(range(B)))
     max_ticks = round(config.max_episode_s / dt)
     per_robot_dim = hops + hops * (hops - 1) // 2 + 2
+    zeros = lambda *shape, kind=dtype: torch.zeros(*shape, device=device, dtype=kind)  # noqa: E731
     buffers = {
-        "features": torch.zeros(T, B, n_max, hops, 2, device=device, dtype=dtype),
-        "actions": torch.zeros(T, B, n_max, actor.action_dim, device=device, dtype=dtype),
-        "logp": torch.zeros(T, B, n_max, device=device, dtype=dtype),
-        "valid": torch.zeros(T, B, n_max, device=device, dtype=torch.bool),
-        "critic_robots": torch.zeros(T, B, n_max, per_robot_dim, device=device, dtype=dtype),
-        "critic_summary": torch.zeros(T, B, Critic.GLOBAL, device=device, dtype=dtype),
-        "values": torch.zeros(T, B, device=device, dtype=dtype),
-        "rewards": torch.zeros(T, B, device=device, dtype=dtype),
-        "dones": torch.zeros(T, B, device=device, dtype=dtype),
+        "features": zeros(T, B, n_max, hops, 2),
+        "actions": zeros(T, B, n_max, actor.action_dim),
+        "logp": zeros(T, B, n_max),
+        "valid": zeros(T, B, n_max, kind=torch.bool),
+        "critic_robots": zeros(T, B, n_max, per_robot_dim),
+        "critic_summary": zeros(T, B, Critic.GLOBAL),
+        "values": zeros(T, B),
+        "rewards": zeros(T, B),
+        "terminated": zeros(T, B),
+        "truncated": zeros(T, B),
+        "final_values": zeros(T, B),  # value of the state a time-out stopped in (bootstrap_time_outs)
     }
     writer = None
     if config.tensorboard:
@@ -590,53 +757,33 @@ def train(config: PPOConfig) -> Path:
         from tqdm import tqdm
 
         bar = tqdm(total=config.updates, unit="update", desc="ppo")
-
     log_rows: list[dict] = []
     eval_rows: list[dict] = []
     best_score, best_update = math.inf, -1
     started = time.perf_counter()
     env_steps = 0
-    potential = -env.max_pairwise() / (2 * config.v_max_mps)
-    episode_return = torch.zeros(B, device=device, dtype=dtype)
+    phi = potential(env.max_pairwise(), config.v_max_mps)
+    episode_return = zeros(B)
 
-    def checkpoint(update: int) -> dict:
-        return {
-            "model_config": gnn.config(),
-            "model": gnn.state_dict(),
-            "actor": actor.state_dict(),
-            "critic": critic.state_dict(),
-            "optimizer": optimizer.state_dict(),
-            "update": update,
-            "ppo_config": asdict(config),
-        }
-
-    def run_eval(update: int) -> None:
+    def evaluate_now(update: int) -> None:  # evaluate; keep the best iterate's checkpoint
         nonlocal best_score, best_update
-        row: dict[str, Any] = {"update": update, "env_steps": env_steps}
-        row.update(evaluate(actor, config, robot, device, dtype))
-        row["score"] = eval_score(row)
-        eval_rows.append(row)
-        write_csv(out / "eval.csv", eval_rows)
-        if writer is not None:
-            for key, value in row.items():
-                if key.endswith("_median_s") and value is not None:
-                    writer.add_scalar(f"eval/{key}", value, env_steps)
-        if row["score"] < best_score:
-            best_score, best_update = row["score"], update
-            torch.save(checkpoint(update), out / "checkpoints" / "best.pt")
+        score = evaluate_and_log(
+            actor, config, robot, device, dtype, update, env_steps, eval_rows, out, writer
+        )
+        if score < best_score:
+            best_score, best_update = score, update
+            torch.save(
+                make_checkpoint(gnn, actor, critic, optimizer, update, config),
+                out / "checkpoints" / "best.pt",
+            )
 
-    run_eval(0)
+    evaluate_now(0)
+    update = 0
     for update in range(1, config.updates + 1):
-        if config.lr_schedule == "linear":
-            for group, base in zip(optimizer.param_groups, base_lrs, strict=True):
-                group["lr"] = base * (1.0 - (update - 1) / config.updates)
-        elif log_rows and update > config.critic_warmup_updates + 1:
-            kl, group = log_rows[-1]["approx_kl"], optimizer.param_groups[0]
-            if kl < config.target_kl / 1.5:
-                group["lr"] = min(group["lr"] * 1.5, 30 * config.lr)
-            elif kl > config.target_kl * 1.5:
-                group["lr"] = max(group["lr"] / 1.5, config.lr / 30)
-        # -- rollout -----------------------------------------------------------------------------
+        # -- 1. learning rates ----------------------------------------------------------------------
+        anneal_lr(optimizer, config, update, log_rows[-1]["approx_kl"] if log_rows else None)
+
+        # -- 2. rollout: T ticks of B swarms, every robot sampling its action -------------------------
         finished_times, finished_returns, truncated = [], [], 0
         for t in range(T):
             features, phi_world, points = env.observe()
@@ -658,40 +805,52 @@ def train(config: PPOConfig) -> Path:
                 env.step(actor.apply(features, actions), phi_world, points)
             diameter = env.max_pairwise()
             terminated = diameter <= config.threshold_m
-            time_out = env.ticks >= max_ticks
-            new_potential = torch.where(
-                terminated, torch.zeros_like(diameter), -diameter / (2 * config.v_max_mps)
+            out_of_ticks = env.ticks >= max_ticks
+            time_out = out_of_ticks & ~terminated
+            reward, _ = shaped_reward(
+                phi, potential(diameter, config.v_max_mps), terminated, dt, config.gamma, config.shaping
             )
-            reward = -dt + config.shaping * (config.gamma * new_potential - potential)
-            done = terminated | time_out
             buffers["rewards"][t] = reward
-            buffers["dones"][t] = done.to(dtype)
+            buffers["terminated"][t] = terminated.to(dtype)
+            buffers["truncated"][t] = time_out.to(dtype)
+            if config.bootstrap_time_outs and bool(time_out.any()):
+                features_end, _, _ = env.observe()
+                robots_end, summary_end = critic_inputs(env, features_end, scale_m, n_max)
+                with torch.no_grad():
+                    final = critic(robots_end, env.valid, summary_end)
+                buffers["final_values"][t] = torch.where(time_out, final, torch.zeros_like(final))
+            else:
+                buffers["final_values"][t] = 0.0
             episode_return += reward
             env_steps += B
+            done = terminated | time_out
             ended = done.nonzero().flatten().tolist()
             if ended:
                 ticks = env.ticks[ended].cpu().numpy()
                 finished_times.extend((ticks * dt).tolist())
                 finished_returns.extend(episode_return[ended].cpu().tolist())
-                truncated += int(time_out[ended].sum())
+                truncated += int(out_of_ticks[ended].sum())
                 episode_return[ended] = 0.0
-                reset(ended)
-            potential = -env.max_pairwise() / (2 * config.v_max_mps)
-        # -- advantages (GAE) --------------------------------------------------------------------
+                sampler.start(env, ended)
+            phi = potential(env.max_pairwise(), config.v_max_mps)
+
+        # -- 3. advantages (GAE, time-outs cut the recursion) ---------------------------------------
         with torch.no_grad():
             features, _, _ = env.observe()
             robots, summary = critic_inputs(env, features, scale_m, n_max)
             next_value = critic(robots, env.valid, summary)
-            advantages = torch.zeros(T, B, device=device, dtype=dtype)
-            last = torch.zeros(B, device=device, dtype=dtype)
-            for t in reversed(range(T)):
-                following = next_value if t == T - 1 else buffers["values"][t + 1]
-                alive = 1.0 - buffers["dones"][t]
-                delta = buffers["rewards"][t] + config.gamma * following * alive - buffers["values"][t]
-                last = delta + config.gamma * config.gae_lambda * alive * last
-                advantages[t] = last
-            returns = advantages + buffers["values"]
-        # -- PPO update ----------------------------------------------------------------------------
+            advantages, returns = gae(
+                buffers["rewards"],
+                buffers["values"],
+                next_value,
+                buffers["terminated"],
+                buffers["truncated"],
+                buffers["final_values"],
+                config.gamma,
+                config.gae_lambda,
+            )
+
+        # -- 4. PPO update: epochs x minibatches of (tick, swarm) samples --------------------------
         flat = {key: value.reshape(T * B, *value.shape[2:]) for key, value in buffers.items()}
         flat_adv, flat_ret = advantages.reshape(-1), returns.reshape(-1)
         train_policy = update > config.critic_warmup_updates
@@ -703,44 +862,19 @@ def train(config: PPOConfig) -> Path:
             order = torch.randperm(T * B, generator=shuffle).to(device)
             for start in range(0, T * B, size):
                 index = order[start : start + size]
-                valid = flat["valid"][index]
-                adv = flat_adv[index]
-                adv = (adv - adv.mean()) / (adv.std() + 1e-8)
-                value = critic(flat["critic_robots"][index], valid, flat["critic_summary"][index])
-                if config.clip_value:
-                    old = flat["values"][index]
-                    clipped = old + (value - old).clamp(-config.clip, config.clip)
-                    value_loss = 0.5 * torch.max(
-                        (value - flat_ret[index]) ** 2, (clipped - flat_ret[index]) ** 2
-                    )
-                else:
-                    value_loss = 0.5 * (value - flat_ret[index]) ** 2
-                value_loss = value_loss.mean()
-                loss = config.value_coef * value_loss
-                if train_policy:  # over the robots that exist (padding slots skipped)
-                    dist = actor.distribution(flat["features"][index][valid])
-                    logp = dist.log_prob(flat["actions"][index][valid]).sum(-1)
-                    log_ratio = logp - flat["logp"][index][valid]
-                    ratio = log_ratio.exp()
-                    robot_adv = adv[:, None].expand_as(valid)[valid]
-                    surrogate = torch.max(
-                        -robot_adv * ratio, -robot_adv * ratio.clamp(1 - config.clip, 1 + config.clip)
-                    )
-                    policy_loss = surrogate.mean()
-                    entropy = actor.log_std.sum() + math.log(2 * math.pi * math.e)  # per robot, state-free
-                    loss = loss + policy_loss - config.entropy_coef * entropy
-                    with torch.no_grad():
-                        kl = ((ratio - 1) - log_ratio).mean()
-                        clipped_share = ((ratio - 1).abs() > config.clip).to(dtype).mean()
-                    stats["policy_loss"].append(float(policy_loss.detach()))
-                    stats["approx_kl"].append(float(kl))
-                    stats["clip_fraction"].append(float(clipped_share))
-                stats["value_loss"].append(float(value_loss.detach()))
+                batch = {key: value[index] for key, value in flat.items()}
+                loss, minibatch = ppo_loss(
+                    actor, critic, batch, flat_adv[index], flat_ret[index], config, train_policy
+                )
+                for key, value in minibatch.items():
+                    stats[key].append(value)
                 optimizer.zero_grad(set_to_none=True)
                 loss.backward()
                 nn.utils.clip_grad_norm_(actor_params, config.max_grad_norm)
                 nn.utils.clip_grad_norm_(critic.parameters(), config.max_grad_norm)
                 optimizer.step()
+
+        # -- 5. logs, checkpoints, evaluation, stop --------------------------------------------------
         explained = 1.0 - float((flat_ret - flat["values"]).var() / (flat_ret.var() + 1e-12))
         row = {
             "update": update,
@@ -768,14 +902,17 @@ def train(config: PPOConfig) -> Path:
                 ):
                     writer.add_scalar(f"train/{key}", value, env_steps)
         if update % config.checkpoint_every == 0 or update == config.updates:
-            torch.save(checkpoint(update), out / "checkpoints" / "last.pt")
+            torch.save(
+                make_checkpoint(gnn, actor, critic, optimizer, update, config),
+                out / "checkpoints" / "last.pt",
+            )
         if update % config.eval_every == 0 or update == config.updates:
-            run_eval(update)
+            evaluate_now(update)
         out_of_time = (
             config.time_limit_s is not None and time.perf_counter() - started > config.time_limit_s
         ) or (config.stop_after is not None and update >= config.stop_after)
         if out_of_time and update % config.eval_every != 0 and update != config.updates:
-            run_eval(update)
+            evaluate_now(update)
         if bar is not None:
             bar.update()
             last_eval = eval_rows[-1]
@@ -791,9 +928,11 @@ def train(config: PPOConfig) -> Path:
         writer.close()
     plot_curve(log_rows, eval_rows, out / "learning_curve.png")
 
-    # -- export the best iterate -------------------------------------------------------------------
+    # -- export the chosen iterate ------------------------------------------------------------------
     if config.export == "last":
-        torch.save(checkpoint(update), out / "checkpoints" / "last.pt")
+        torch.save(
+            make_checkpoint(gnn, actor, critic, optimizer, update, config), out / "checkpoints" / "last.pt"
+        )
         best_update = update
     chosen = "best" if config.export == "best" else "last"
     best = torch.load(out / "checkpoints" / f"{chosen}.pt", map_location="cpu", weights_only=False)
