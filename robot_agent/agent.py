@@ -57,7 +57,7 @@ import numpy as np
 import zenoh
 
 from swarm import wire
-from swarm.faults import DROPPED, HEARD, LOST, LinkFaults, message_max_age_ticks, usable_ticks
+from swarm.faults import DROPPED, HEARD, LOST, LinkFaults, message_max_age_ticks, select_message
 from swarm.onboard import robot_controller, wheels_one
 from swarm.robot import RobotParams
 
@@ -532,12 +532,9 @@ class RobotAgent:
             for j in neighbours:
                 box = self._inbox[j]
                 delay = 0 if no_faults else faults.delay_ticks(j, me, tick)
-                values = None
-                for k in usable_ticks(tick, delay, max_age):  # newest first
-                    values = box.get(k)
-                    if values is not None and (no_faults or faults.heard(j, me, k)):
-                        break
-                    values = None
+                came = lambda k, box=box, j=j: k in box and (no_faults or faults.heard(j, me, k))  # noqa: E731
+                sent = select_message(tick, delay, max_age, came)  # swarm.faults' rule, KinematicSim's too
+                values = None if sent is None else box[sent]
                 needed = tick - 1 - delay  # what the timing names; older ones only stand in for it
                 reason = HEARD if no_faults or needed < 0 else faults.reason(j, me, needed)
                 if reason == DROPPED:

@@ -24,7 +24,7 @@ the first tick at or after it, ``until`` ends it before the first tick at or aft
   that neighbour is the one of tick ``k - 1 - d`` instead of ``k - 1`` (the largest ``ticks`` of the
   ``delay`` faults active at ``k`` that cover the link).
 
-Which message a robot uses (:func:`usable_ticks`): the newest heard one among the ticks
+Which message a robot uses (:func:`usable`, :func:`select_message`): the newest heard one among the ticks
 ``k - 1 - d, ..., k - d - A`` with ``A = sim.message_max_age_ticks`` (default 1 in lockstep: exactly the
 message of tick ``k - 1 - d``, as docs/design.md's timing says; 10 in realtime, where messages arrive
 when they arrive). A neighbour with no usable message is left out of that tick: the controllers then
@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -316,6 +316,28 @@ def usable_ticks(tick: int, delay_ticks: int, max_age_ticks: int) -> range:
     ``tick - 1 - delay`` back to ``tick - delay - max_age`` (never below 0)."""
     newest = tick - 1 - delay_ticks
     return range(newest, max(newest - max_age_ticks, -1), -1)
+
+
+def usable(age_ticks: Any, delay_ticks: Any, max_age_ticks: int, heard: Any) -> Any:
+    """The message-selection rule, elementwise (ints and bools, or numpy arrays): a message a neighbour
+    sent ``age_ticks`` before the receiving tick may be used when it was heard (it came, and the
+    schedule neither dropped nor lost it), it is not newer than the link's delay allows
+    (``age >= 1 + delay``) and not older than the age limit beyond that (``age <= delay + max_age``).
+    A robot uses the newest usable message of each neighbour (:func:`select_message`); both engines
+    apply this rule, the robot agents per neighbour and ``KinematicSim`` over whole arrays."""
+    return heard & (age_ticks >= 1 + delay_ticks) & (age_ticks <= delay_ticks + max_age_ticks)
+
+
+def select_message(
+    tick: int, delay_ticks: int, max_age_ticks: int, heard: Callable[[int], bool]
+) -> int | None:
+    """Which message robot i uses from neighbour j at receiving ``tick``: the tick of the newest one
+    :func:`usable` admits, ``heard(m)`` saying whether j's message of tick m came and was not lost
+    to a fault; None: j is left out of this tick."""
+    for sent in usable_ticks(tick, delay_ticks, max_age_ticks):
+        if usable(tick - sent, delay_ticks, max_age_ticks, heard(sent)):
+            return sent
+    return None
 
 
 # ---------------------------------------------------------------------------------- results

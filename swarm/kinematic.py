@@ -23,7 +23,7 @@ import numpy as np
 
 from swarm import kernels
 from swarm.controllers import BatchedController
-from swarm.faults import DROPPED, HEARD, LOST, LinkFaults
+from swarm.faults import DROPPED, HEARD, LOST, LinkFaults, usable
 from swarm.links import Links
 from swarm.robot import RobotParams, controlled_point
 
@@ -145,8 +145,8 @@ class KinematicSim:
             newest = valid & (age == 1 + delay)  # the message the timing of docs/design.md (plus delay) names
             self.fault_counts["dropped_by_fault"] += int(np.count_nonzero(newest & (reasons == DROPPED)))
             self.fault_counts["lost_by_fault"] += int(np.count_nonzero(newest & (reasons == LOST)))
-            usable = valid & (reasons == HEARD) & (age >= 1 + delay) & (age <= delay + max_age)
-            env, receiver, slot = np.nonzero(usable)
+            chosen_now = valid & usable(age, delay, max_age, reasons == HEARD)  # swarm.faults' rule
+            env, receiver, slot = np.nonzero(chosen_now)
             sender = index[env, receiver, slot]
             fresh = ~chosen[env, receiver, sender]  # a newer message of that neighbour came first
             env, receiver, slot, sender = env[fresh], receiver[fresh], slot[fresh], sender[fresh]

@@ -29,6 +29,8 @@ from swarm.faults import (
     loss_uniform,
     loss_uniform_array,
     message_max_age_ticks,
+    select_message,
+    usable,
     usable_ticks,
 )
 from swarm.kinematic import KinematicSim
@@ -109,6 +111,23 @@ def test_delay_and_until():
     assert message_max_age_ticks({"mode": "lockstep"}) == 1
     assert message_max_age_ticks({"mode": "realtime", "message_max_age_ticks": None}) == 10
     assert message_max_age_ticks({"mode": "lockstep", "message_max_age_ticks": 3}) == 3
+
+
+def test_message_selection_rule_by_hand():
+    """Receiving tick 10: with delay 3 and age limit 2 only the messages of ticks 6 and 5 (ages 4, 5)
+    may be used, the newest heard one wins; the same rule elementwise on arrays."""
+    assert [usable(age, 3, 2, True) for age in range(1, 8)] == [False, False, False, True, True, False, False]
+    assert not usable(4, 3, 2, False)  # not heard: never used
+    arrived = {9, 8, 6, 5, 4}
+    assert select_message(10, 3, 2, arrived.__contains__) == 6
+    assert select_message(10, 3, 2, {5, 4}.__contains__) == 5  # 6 missing: the older one stands in
+    assert select_message(10, 3, 2, {4, 7}.__contains__) is None  # 7 too new, 4 too old
+    assert select_message(10, 0, 1, {8}.__contains__) is None  # lockstep: only tick 9 counts
+    assert select_message(1, 0, 10, {0}.__contains__) == 0 and select_message(0, 0, 10, bool) is None
+    ages = np.array([[1, 4], [5, 6]])
+    delays = np.array([[0, 3], [3, 3]])
+    heard = np.array([[True, True], [False, True]])
+    np.testing.assert_array_equal(usable(ages, delays, 2, heard), [[True, True], [False, False]])
 
 
 def test_array_forms_equal_the_per_link_answers():
