@@ -16,9 +16,9 @@ import os
 import platform
 import time
 from dataclasses import asdict
-from pathlib import Path
 
 import numpy as np
+from _output import add_output_arguments, output_dir, progress
 
 from swarm.data import collect, collect_config
 
@@ -31,11 +31,12 @@ def main() -> None:
     )
     parser.add_argument("--samples", type=int, default=1_000_000)
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--out", default=str(Path(__file__).parent / "results" / "data.json"))
+    add_output_arguments(parser)
     args = parser.parse_args()
+    out = output_dir(args) / "data.json"
     collect(collect_config(samples=20_000, seed=99), progress=False)  # compile and warm up
     seconds = []
-    for repeat in range(args.repeats):
+    for repeat in progress(range(args.repeats), args, desc="bench_data", unit="run"):
         started = time.perf_counter()
         dataset = collect(collect_config(samples=args.samples, seed=repeat), progress=False)
         seconds.append(time.perf_counter() - started)
@@ -61,12 +62,11 @@ def main() -> None:
             "load_average_1_5_15": [round(value, 2) for value in load],
         },
     }
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(report, indent=2) + "\n")
+    out.write_text(json.dumps(report, indent=2) + "\n")
     verdict = "meets" if report["meets_target"] else "MISSES"
     print(
         f"median {median_s:.2f} s for {args.samples} samples: {verdict} the {TARGET_S:g} s target;"
-        f" written {args.out}"
+        f" written {out}"
     )
 
 

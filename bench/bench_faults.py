@@ -43,6 +43,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _output import add_output_arguments, output_dir, progress
 
 from swarm import graphs
 from swarm.initial_poses import box_for
@@ -177,13 +178,13 @@ def run_cell(kind: str, count: int, controller: str, condition: str, work: Path)
     }
 
 
-def load_results() -> dict:
-    if JSON_PATH.is_file():
-        return json.loads(JSON_PATH.read_text())
+def load_results(json_path: Path) -> dict:
+    if json_path.is_file():
+        return json.loads(json_path.read_text())
     return {"cells": {}}
 
 
-def save_results(results: dict) -> None:
+def save_results(results: dict, out_dir: Path) -> None:
     results["machine"] = {"platform": platform.platform(), "cpus": os.cpu_count()}
     results["settings"] = {
         "thresholds_m": THRESHOLDS_M,
@@ -195,11 +196,12 @@ def save_results(results: dict) -> None:
         "mode": "lockstep",
     }
     results["cells"] = dict(sorted(results["cells"].items()))
-    RESULTS.mkdir(exist_ok=True)
-    temporary = JSON_PATH.with_suffix(".json.tmp")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    json_path = out_dir / JSON_PATH.name
+    temporary = json_path.with_suffix(".json.tmp")
     temporary.write_text(json.dumps(results, indent=1) + "\n")
-    os.replace(temporary, JSON_PATH)
-    MD_PATH.write_text(report(results))
+    os.replace(temporary, json_path)
+    (out_dir / MD_PATH.name).write_text(report(results))
 
 
 def _time(cell: dict | None, threshold: float) -> str:
@@ -294,24 +296,29 @@ def main() -> int:
     parser.add_argument("--conditions", nargs="+", default=list(CONDITIONS), choices=CONDITIONS)
     parser.add_argument("--force", action="store_true", help="run cells that are already in faults.json")
     parser.add_argument("--report", action="store_true", help="only rewrite faults.md from faults.json")
+    add_output_arguments(parser)
     args = parser.parse_args()
-    results = load_results()
+    out_dir = output_dir(args)
+    results = load_results(out_dir / JSON_PATH.name)
     if args.report:
-        save_results(results)
+        save_results(results, out_dir)
         return 0
+    cells = [
+        (kind, count, controller, condition)
+        for count in args.sizes
+        for kind in args.kinds
+        for controller in args.controllers
+        for condition in args.conditions
+        if args.force or cell_id(kind, count, controller, condition) not in results["cells"]
+    ]
     with tempfile.TemporaryDirectory(prefix="bench-faults-") as work:
-        for count in args.sizes:
-            for kind in args.kinds:
-                for controller in args.controllers:
-                    for condition in args.conditions:
-                        key = cell_id(kind, count, controller, condition)
-                        if key in results["cells"] and not args.force:
-                            continue
-                        cell = run_cell(kind, count, controller, condition, Path(work))
-                        results["cells"][key] = cell
-                        save_results(results)
-                        times = cell["convergence_time_s_by_threshold"]
-                        print(f"{key}: {times} (wall {cell['wall_s']:.1f} s)", flush=True)
+        for kind, count, controller, condition in progress(cells, args, desc="bench_faults", unit="cell"):
+            key = cell_id(kind, count, controller, condition)
+            cell = run_cell(kind, count, controller, condition, Path(work))
+            results["cells"][key] = cell
+            save_results(results, out_dir)
+            times = cell["convergence_time_s_by_threshold"]
+            print(f"{key}: {times} (wall {cell['wall_s']:.1f} s)", flush=True)
     return 0
 
 

@@ -15,9 +15,9 @@ import json
 import platform
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
+from _output import add_output_arguments, output_dir, progress
 
 from swarm.policy import load_policy
 
@@ -30,7 +30,7 @@ def main() -> None:
     )
     parser.add_argument("model", nargs="?", default="models/gnn_default.npz")
     parser.add_argument("--calls", type=int, default=20_000)
-    parser.add_argument("--out", default=str(Path(__file__).parent / "results" / "inference.json"))
+    add_output_arguments(parser)
     args = parser.parse_args()
     policy = load_policy(args.model, robot_count=6)
     rng = np.random.default_rng(0)
@@ -40,7 +40,7 @@ def main() -> None:
     for index in range(200):  # warm up
         policy.act_one(poses[index], inboxes[index])
     elapsed = np.empty(args.calls)
-    for index in range(args.calls):
+    for index in progress(range(args.calls), args, desc="bench_inference", unit="call", mininterval=0.5):
         start = time.perf_counter_ns()
         policy.act_one(poses[index], inboxes[index])
         elapsed[index] = (time.perf_counter_ns() - start) / 1000.0
@@ -69,8 +69,7 @@ def main() -> None:
         "note": "shared 2-core machine; p99 includes interference from other processes",
     }
     report["meets_target"] = report["overall"]["median_us"] <= TARGET_US
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    out = output_dir(args) / "inference.json"
     out.write_text(json.dumps(report, indent=2) + "\n")
     print(json.dumps(report["overall"]), "->", out)
 

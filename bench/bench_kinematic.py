@@ -15,9 +15,9 @@ import json
 import os
 import platform
 import time
-from pathlib import Path
 
 import numpy as np
+from _output import add_output_arguments, output_dir, progress
 
 from swarm import graphs
 from swarm.controllers import LocalConsensus
@@ -72,25 +72,26 @@ def main() -> None:
     )
     parser.add_argument("--ticks", type=int, default=400)
     parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--out", default=str(Path(__file__).parent / "results" / "kinematic.json"))
+    add_output_arguments(parser)
     args = parser.parse_args()
+    out = output_dir(args) / "kinematic.json"
     results = []
-    for graph in ("cycle", "random", "disk"):
-        for batch, count in SHAPES:
-            row = measure(batch, count, graph, args.ticks, args.repeats)
-            results.append(row)
-            batched = batch > 1
-            verdict = ""
-            if batched and graph != "disk":
-                verdict = (
-                    "  meets 2e7"
-                    if row["robot_steps_per_s_median"] >= TARGET_ROBOT_STEPS_PER_S
-                    else "  BELOW 2e7"
-                )
-            print(
-                f"{graph:6s} B={batch:5d} N={count:5d}: {row['robot_steps_per_s_median']:.3g} robot-steps/s "
-                f"(best {row['robot_steps_per_s_best']:.3g}){verdict}"
+    cases = [(graph, batch, count) for graph in ("cycle", "random", "disk") for batch, count in SHAPES]
+    for graph, batch, count in progress(cases, args, desc="bench_kinematic", unit="case"):
+        row = measure(batch, count, graph, args.ticks, args.repeats)
+        results.append(row)
+        batched = batch > 1
+        verdict = ""
+        if batched and graph != "disk":
+            verdict = (
+                "  meets 2e7"
+                if row["robot_steps_per_s_median"] >= TARGET_ROBOT_STEPS_PER_S
+                else "  BELOW 2e7"
             )
+        print(
+            f"{graph:6s} B={batch:5d} N={count:5d}: {row['robot_steps_per_s_median']:.3g} robot-steps/s "
+            f"(best {row['robot_steps_per_s_best']:.3g}){verdict}"
+        )
     load = os.getloadavg()
     report = {
         "benchmark": "kinematic simulator, local consensus, robot-steps per second",
@@ -103,9 +104,8 @@ def main() -> None:
         },
         "results": results,
     }
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(report, indent=2) + "\n")
-    print(f"written {args.out} (load average {load[0]:.2f})")
+    out.write_text(json.dumps(report, indent=2) + "\n")
+    print(f"written {out} (load average {load[0]:.2f})")
 
 
 if __name__ == "__main__":

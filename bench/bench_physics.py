@@ -23,6 +23,7 @@ from importlib.metadata import version
 from pathlib import Path
 
 import numpy as np
+from _output import add_output_arguments, output_dir, progress
 
 from sim_server.physics import PhysicsWorld
 from swarm.robot import RobotParams
@@ -100,11 +101,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--solver-iterations", type=int, default=10)
     ap.add_argument("--control-period", type=float, default=0.05)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", type=Path, default=RESULTS)
+    add_output_arguments(ap)
     args = ap.parse_args(argv)
+    out = output_dir(args) / RESULTS.name
 
     rows = []
-    for n in args.robots:
+    for n in progress(args.robots, args, desc="bench_physics", unit="size"):
         sim_seconds = args.sim_seconds if args.sim_seconds is not None else (5.0 if n <= 50 else 2.0)
         rows.append(
             bench_one(n, sim_seconds, args.physics_hz, args.solver_iterations, args.control_period, args.seed)
@@ -132,9 +134,8 @@ def main(argv: list[str] | None = None) -> int:
         },
         "results": rows,
     }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
-    print(f"wrote {args.out}")
+    out.write_text(json.dumps(result, indent=2) + "\n", encoding="utf-8")
+    print(f"wrote {out}")
     return 0
 
 

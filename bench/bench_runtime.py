@@ -45,6 +45,7 @@ from pathlib import Path
 
 import psutil
 import yaml
+from _output import add_output_arguments, output_dir, progress
 
 from swarm.initial_poses import box_for
 
@@ -323,11 +324,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--solver-iterations", type=int, help="scenario sim.solver_iterations")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--timeout", type=float, default=300.0, help="seconds per run")
-    parser.add_argument("--out", type=Path, default=RESULTS / "runtime.json")
+    add_output_arguments(parser)
     parser.add_argument(
         "--keep", type=Path, help="keep every run's results directory here (default: failed runs only)"
     )
     args = parser.parse_args(argv)
+    out = output_dir(args) / "runtime.json"
+    bar = progress(
+        total=sum(
+            1 + len(args.modes) * (len(args.large_physics_hz) if n >= args.large else 1) for n in args.counts
+        ),
+        iterable=None,
+        args=args,
+        desc="bench_runtime",
+        unit="run",
+    )
 
     results, load_before = [], os.getloadavg()[0]
     keep = args.keep or Path(tempfile.gettempdir()) / "bench-runtime-failed"
@@ -350,6 +361,7 @@ def main(argv: list[str] | None = None) -> int:
                 kept = keep / f"{data['name']}-{time.strftime('%H%M%S')}"
                 shutil.copytree(Path(work) / data["name"], kept, dirs_exist_ok=True)
                 result["results_dir"] = str(kept)
+            bar.update(1)
             resolved = yaml.safe_load((Path(work) / data["name"] / "scenario.yaml").read_text())
             return {
                 "robots": count,
@@ -393,9 +405,9 @@ def main(argv: list[str] | None = None) -> int:
     report["targets"] = targets_met(
         [r for r in results if r["robots"] < args.large or r["physics_hz"] == first_large_hz]
     )
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(report, indent=2) + "\n")
-    args.out.with_suffix(".md").write_text(markdown(report))
+    bar.close()
+    out.write_text(json.dumps(report, indent=2) + "\n")
+    out.with_suffix(".md").write_text(markdown(report))
     print(markdown(report))
     return 0 if all(c["met"] is not False for c in report["targets"].values()) else 1
 

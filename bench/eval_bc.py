@@ -16,9 +16,9 @@ import argparse
 import json
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
+from _output import add_output_arguments, output_dir
 
 from swarm.features import FeatureSpec
 from swarm.policy import FeatureController, load_policy
@@ -51,7 +51,8 @@ def main() -> None:
     parser.add_argument(
         "--also", nargs="+", default=[], metavar="NAME=PATH", help="more policy files to compare"
     )
-    parser.add_argument("--out", default=str(Path(__file__).parent / "results" / "bc_vs_lc"))
+    parser.add_argument("--name", default="bc_vs_lc", help="file name of the results: NAME.json, NAME.md")
+    add_output_arguments(parser)
     args = parser.parse_args()
     policy = load_policy(args.model)
     controllers = {
@@ -66,7 +67,12 @@ def main() -> None:
         controllers["uniform_filter"] = lambda robot, count: UniformFilter(robot, policy.spec.hops, gain)
     started = time.perf_counter()
     rows = compare(
-        controllers, args.topologies, args.sizes, args.seeds, max_duration_s=args.max_duration, progress=True
+        controllers,
+        args.topologies,
+        args.sizes,
+        args.seeds,
+        max_duration_s=args.max_duration,
+        progress=not args.quiet,
     )
     table = format_rows(rows)
     print(table)
@@ -79,8 +85,7 @@ def main() -> None:
         "wall_s": round(time.perf_counter() - started, 1),
         "rows": rows,
     }
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    out = output_dir(args) / args.name
     out.with_suffix(".json").write_text(json.dumps(report, indent=2) + "\n")
     out.with_suffix(".md").write_text(
         f"`{report['command']}` ({args.seeds} random starts per cell; t / first: median over starts of "

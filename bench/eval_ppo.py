@@ -24,6 +24,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _output import add_output_arguments, output_dir, progress
 
 from swarm import metrics
 from swarm.controllers import Centralized, LocalConsensus
@@ -50,54 +51,54 @@ def evaluate(args: argparse.Namespace) -> list[dict]:
     config = sweep_config(args.starts, 0.2, 0.5, 0.05)
     gains = tuned_gains(Path(args.tuned))
     rows = []
-    for topology in args.topologies:
-        for count in args.sizes:
-            if (topology, count) not in gains:
-                found = tune([topology], [count], DEFAULT_GAINS, min(args.starts, 200))[0]
-                gains[(topology, count)] = found["tuned_gain_per_s"]
-            gain = gains[(topology, count)]
-            controllers = {
-                "ppo": lambda n: load_policy(args.model, robot, n),
-                "bc": lambda n: load_policy(args.bc, robot, n),
-                f"local_consensus_tuned_K{gain:g}": lambda n, g=gain: LocalConsensus(robot, g),
-                "local_consensus_K1": lambda n: LocalConsensus(robot, 1.0),
-                "centralized": lambda n: Centralized(robot, 1.0),
-            }
-            poses, adjacency, _ = cell_starts(config, topology, count)
-            lower = np.array([metrics.lower_bound_s(p[:, :2], 0.2, robot.v_max_mps) for p in poses])
-            times = {}
-            for name, factory in controllers.items():
-                started = time.perf_counter()
-                sim = KinematicSim(robot, factory(count), 0.05, poses, adjacency)
-                times[name] = converge_batch(sim, 0.2, args.max_duration, 5.0)
-                print(f"{topology} N={count} {name}: {time.perf_counter() - started:.1f} s", flush=True)
-            reference = times[f"local_consensus_tuned_K{gain:g}"]
-            for name, values in times.items():
-                ok = ~np.isnan(values)
-                both = ok & ~np.isnan(reference)
-                median = float(np.median(values[ok])) if ok.any() else None
-                rows.append(
-                    {
-                        "topology": topology,
-                        "robots": count,
-                        "controller": name,
-                        "tuned_gain_per_s": gain,
-                        "starts": len(values),
-                        "success_rate": float(ok.mean()),
-                        "median_time_s": median,
-                        "p90_time_s": float(np.percentile(values[ok], 90)) if ok.any() else None,
-                        "median_lower_bound_s": float(np.median(lower)),
-                        "ratio_of_medians_to_tuned_lc": None
-                        if median is None
-                        else median / float(np.median(reference[~np.isnan(reference)])),
-                        "median_ratio_to_tuned_lc": float(np.median(values[both] / reference[both]))
-                        if both.any()
-                        else None,
-                        "median_ratio_to_lower_bound": float(np.median(values[ok] / lower[ok]))
-                        if ok.any()
-                        else None,
-                    }
-                )
+    cells = [(topology, count) for topology in args.topologies for count in args.sizes]
+    for topology, count in progress(cells, args, desc="eval_ppo", unit="cell"):
+        if (topology, count) not in gains:
+            found = tune([topology], [count], DEFAULT_GAINS, min(args.starts, 200))[0]
+            gains[(topology, count)] = found["tuned_gain_per_s"]
+        gain = gains[(topology, count)]
+        controllers = {
+            "ppo": lambda n: load_policy(args.model, robot, n),
+            "bc": lambda n: load_policy(args.bc, robot, n),
+            f"local_consensus_tuned_K{gain:g}": lambda n, g=gain: LocalConsensus(robot, g),
+            "local_consensus_K1": lambda n: LocalConsensus(robot, 1.0),
+            "centralized": lambda n: Centralized(robot, 1.0),
+        }
+        poses, adjacency, _ = cell_starts(config, topology, count)
+        lower = np.array([metrics.lower_bound_s(p[:, :2], 0.2, robot.v_max_mps) for p in poses])
+        times = {}
+        for name, factory in controllers.items():
+            started = time.perf_counter()
+            sim = KinematicSim(robot, factory(count), 0.05, poses, adjacency)
+            times[name] = converge_batch(sim, 0.2, args.max_duration, 5.0)
+            print(f"{topology} N={count} {name}: {time.perf_counter() - started:.1f} s", flush=True)
+        reference = times[f"local_consensus_tuned_K{gain:g}"]
+        for name, values in times.items():
+            ok = ~np.isnan(values)
+            both = ok & ~np.isnan(reference)
+            median = float(np.median(values[ok])) if ok.any() else None
+            rows.append(
+                {
+                    "topology": topology,
+                    "robots": count,
+                    "controller": name,
+                    "tuned_gain_per_s": gain,
+                    "starts": len(values),
+                    "success_rate": float(ok.mean()),
+                    "median_time_s": median,
+                    "p90_time_s": float(np.percentile(values[ok], 90)) if ok.any() else None,
+                    "median_lower_bound_s": float(np.median(lower)),
+                    "ratio_of_medians_to_tuned_lc": None
+                    if median is None
+                    else median / float(np.median(reference[~np.isnan(reference)])),
+                    "median_ratio_to_tuned_lc": float(np.median(values[both] / reference[both]))
+                    if both.any()
+                    else None,
+                    "median_ratio_to_lower_bound": float(np.median(values[ok] / lower[ok]))
+                    if ok.any()
+                    else None,
+                }
+            )
     return rows
 
 
@@ -254,7 +255,7 @@ def main() -> None:
     parser.add_argument("--starts", type=int, default=1000)
     parser.add_argument("--max-duration", type=float, default=3000.0)
     parser.add_argument("--tuned", default=str(OUT_DIR / "tuned_lc.json"))
-    parser.add_argument("--out", default=str(OUT_DIR))
+    add_output_arguments(parser, committed=OUT_DIR)
     parser.add_argument(
         "--plot-stages",
         nargs="+",
@@ -263,10 +264,10 @@ def main() -> None:
     )
     args = parser.parse_args()
     if args.plot_stages:
-        plot_stages(Path(args.out), args.plot_stages)
+        plot_stages(output_dir(args, committed=OUT_DIR), args.plot_stages)
         return
     rows = evaluate(args)
-    write(rows, args, Path(args.out))
+    write(rows, args, output_dir(args, committed=OUT_DIR))
     print("\n".join(verdicts(rows)))
 
 

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from _output import add_output_arguments, output_dir, progress
 
 from swarm import metrics
 from swarm.initial_poses import box_for
@@ -179,26 +180,24 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=40.0)
     parser.add_argument("--threshold", type=float, default=1.6, help="PyBullet threshold (m)")
     parser.add_argument("--levels", nargs="+", type=float, default=[4.0, 3.0, 2.0, 1.6])
-    parser.add_argument("--out", default=str(OUT_DIR))
+    add_output_arguments(parser, committed=OUT_DIR)
     args = parser.parse_args()
+    out_dir = output_dir(args, committed=OUT_DIR)
     controllers = [
         {"name": "ppo", "kind": "gnn", "model": str((ROOT / args.model).resolve())},
         {"name": "bc", "kind": "gnn", "model": str((ROOT / args.bc).resolve())},
         {"name": "local_consensus_tuned", "kind": "local_consensus", "gain": args.gain},
     ]
     rows = []
+    runs = [(e, s, c) for e in args.engines for s in args.seeds for c in controllers]
     with tempfile.TemporaryDirectory(prefix="ppo-runtime-") as work:
-        for engine in args.engines:
-            for seed in args.seeds:
-                for controller in controllers:
-                    data = scenario(
-                        args.count, seed, args.topology, controller, args.duration, args.threshold
-                    )
-                    row = {"seed": seed, "controller": controller["name"]}
-                    row.update(run_one(data, engine, Path(work), args.levels))
-                    rows.append(row)
-                    print(json.dumps(row), flush=True)
-                    write(rows, args, Path(args.out))
+        for engine, seed, controller in progress(runs, args, desc="ppo_runtime", unit="run"):
+            data = scenario(args.count, seed, args.topology, controller, args.duration, args.threshold)
+            row = {"seed": seed, "controller": controller["name"]}
+            row.update(run_one(data, engine, Path(work), args.levels))
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+            write(rows, args, out_dir)
 
 
 if __name__ == "__main__":

@@ -22,6 +22,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _output import add_output_arguments, output_dir
 
 from swarm import metrics
 from swarm.controllers import LocalConsensus
@@ -94,36 +95,39 @@ def tune(
     control_period_s: float = 0.05,
     max_duration_s: float = 3000.0,
     hold_s: float = 5.0,
+    quiet: bool = True,
 ) -> list[dict]:
+    from tqdm import tqdm
+
     config = sweep_config(starts, threshold_m, v_max_mps, control_period_s)
     rows = []
-    for topology in topologies:
-        for count in sizes:
-            poses, _, _ = cell_starts(config, topology, count)
-            lower = np.array([metrics.lower_bound_s(p[:, :2], threshold_m, v_max_mps) for p in poses])
-            settings = (config, topology, count, lower, max_duration_s, hold_s)
-            per_gain = [measure(*settings, gain) for gain in gains]
-            for octave in (0.25, 0.125):  # refine around the best so far: 1/4, then 1/8 octave either side
-                best = best_of(per_gain)
-                if best is None:
-                    break
-                for factor in (2.0**-octave, 2.0**octave):
-                    gain = round(best["gain_per_s"] * factor, 4)
-                    if all(g["gain_per_s"] != gain for g in per_gain):
-                        per_gain.append(measure(*settings, gain))
+    cells = [(topology, count) for topology in topologies for count in sizes]
+    for topology, count in tqdm(cells, desc="tune gain", unit="cell", disable=quiet):
+        poses, _, _ = cell_starts(config, topology, count)
+        lower = np.array([metrics.lower_bound_s(p[:, :2], threshold_m, v_max_mps) for p in poses])
+        settings = (config, topology, count, lower, max_duration_s, hold_s)
+        per_gain = [measure(*settings, gain) for gain in gains]
+        for octave in (0.25, 0.125):  # refine around the best so far: 1/4, then 1/8 octave either side
             best = best_of(per_gain)
-            per_gain.sort(key=lambda g: g["gain_per_s"])
-            rows.append(
-                {
-                    "topology": topology,
-                    "robots": count,
-                    "starts": len(poses),
-                    "tuned_gain_per_s": None if best is None else best["gain_per_s"],
-                    "tuned_median_time_s": None if best is None else best["median_time_s"],
-                    "median_lower_bound_s": float(np.median(lower)),
-                    "gains": per_gain,
-                }
-            )
+            if best is None:
+                break
+            for factor in (2.0**-octave, 2.0**octave):
+                gain = round(best["gain_per_s"] * factor, 4)
+                if all(g["gain_per_s"] != gain for g in per_gain):
+                    per_gain.append(measure(*settings, gain))
+        best = best_of(per_gain)
+        per_gain.sort(key=lambda g: g["gain_per_s"])
+        rows.append(
+            {
+                "topology": topology,
+                "robots": count,
+                "starts": len(poses),
+                "tuned_gain_per_s": None if best is None else best["gain_per_s"],
+                "tuned_median_time_s": None if best is None else best["median_time_s"],
+                "median_lower_bound_s": float(np.median(lower)),
+                "gains": per_gain,
+            }
+        )
     return rows
 
 
@@ -172,7 +176,7 @@ def main() -> None:
     parser.add_argument("--gains", nargs="+", type=float, default=DEFAULT_GAINS)
     parser.add_argument("--starts", type=int, default=200)
     parser.add_argument("--max-duration", type=float, default=3000.0)
-    parser.add_argument("--out", default=str(OUT_DIR))
+    add_output_arguments(parser, committed=OUT_DIR)
     args = parser.parse_args()
     settings = {
         "command": f"--topologies {' '.join(args.topologies)} --sizes {' '.join(map(str, args.sizes))} "
@@ -185,8 +189,15 @@ def main() -> None:
         "max_duration_s": args.max_duration,
         "gains_per_s": args.gains,
     }
-    rows = tune(args.topologies, args.sizes, args.gains, args.starts, max_duration_s=args.max_duration)
-    write(rows, settings, Path(args.out))
+    rows = tune(
+        args.topologies,
+        args.sizes,
+        args.gains,
+        args.starts,
+        max_duration_s=args.max_duration,
+        quiet=args.quiet,
+    )
+    write(rows, settings, output_dir(args, committed=OUT_DIR))
     for row in rows:
         print(row["topology"], row["robots"], "tuned K", row["tuned_gain_per_s"], row["tuned_median_time_s"])
 

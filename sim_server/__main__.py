@@ -1,5 +1,9 @@
 """``python -m sim_server --scenario FILE --out DIR --run RUN --listen ENDPOINT``: the PyBullet sim server.
 
+At the end it writes ``metrics.json``, ``convergence.png`` and ``animation.gif`` into ``--out`` from what
+is on disk (marked partial when the run did not complete) and prints the summary and the results
+directory, unless ``--no-report`` (``swarm run`` writes them itself).
+
 Exit status: 0 the run completed, 1 it failed (agents did not come up), 2 bad input (one line on
 stderr: a scenario that does not load, an endpoint that cannot be listened on, ...), 3 interrupted.
 
@@ -48,7 +52,34 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--startup-timeout", type=float, default=60.0, help="seconds to wait for all agents")
     parser.add_argument("--die-with-parent", action="store_true", help="exit when the parent process dies")
     parser.add_argument("--quiet", action="store_true")
+    parser.add_argument(
+        "--no-report",
+        action="store_true",
+        help="do not write metrics.json and the plots at the end, nor print the summary (swarm run does it)",
+    )
     return parser
+
+
+def write_results(out_dir: Path, code: int) -> None:
+    """At the end of a run served by hand (several hosts): ``metrics.json`` and the plots from what is on
+    disk (marked partial unless the run completed), then the summary and where the results are."""
+    from sim_server.server import EXIT_INTERRUPTED
+    from swarm.results import report, summary_lines
+
+    why = None
+    if code != 0:
+        try:
+            ticks = (out_dir / "trajectory.jsonl").read_bytes().count(b"\n")
+        except OSError:
+            ticks = 0
+        stopped = "was interrupted" if code == EXIT_INTERRUPTED else f"ended with status {code}"
+        why = f"the sim server {stopped} after {ticks} ticks"
+    try:
+        outcome = report(out_dir, partial=why)
+    except (ScenarioError, OSError, ValueError) as error:
+        print(f"sim_server: no results written: {one_line(error)}", file=sys.stderr)
+        return
+    print("\n".join(summary_lines(outcome, out_dir)), flush=True)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -90,7 +121,10 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     install_signal_handlers(server)
     try:
-        return server.serve()
+        code = server.serve()
+        if not args.no_report:
+            write_results(Path(args.out), code)
+        return code
     except zenoh.ZError as error:  # e.g. the --listen port is in use
         print(f"sim_server: error: cannot open the Zenoh session: {one_line(error)}", file=sys.stderr)
         return EXIT_BAD_INPUT

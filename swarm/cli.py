@@ -1,20 +1,26 @@
 """The ``swarm`` command line.
 
-Exit status: 0 success met, 1 ran but did not meet it, 2 bad input or failed to run.
+Exit status: 0 success met, 1 ran but did not meet it, 2 bad input or failed to run, 130 interrupted
+(Ctrl-C; the partial results of the run are written first).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import json
+import shutil
 import sys
 import time
+import uuid
 from pathlib import Path
 
 import yaml
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_SCENARIO = "scenarios/thesis/cycle-gnn.yaml"
-EXIT_SUCCESS, EXIT_NOT_MET, EXIT_BAD_INPUT = 0, 1, 2
+EXIT_SUCCESS, EXIT_NOT_MET, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+RECORDING_FORMATS = ("mcap", "rerun")
 
 
 class UsageError(Exception):
@@ -50,42 +56,75 @@ def _load_with_overrides(path: Path, args: argparse.Namespace):
     return parse_scenario(data, f"{path} (with command-line overrides)")
 
 
-def _summary_lines(outcome: dict, out_dir: Path) -> list[str]:
-    lines = [
-        f"{outcome['scenario']}: {outcome['controller']} on {outcome['engine']}, {outcome['robots']} robots",
-    ]
-    metric = f"{outcome['metric']} <= {outcome['threshold']:g} m"
-    bound = outcome["lower_bound_s"]
-    if outcome["converged"]:
-        ratio = f", {outcome['ratio_to_lower_bound']:.2f}x the lower bound {bound:.2f} s" if bound else ""
-        lines.append(f"  converged: {metric} from {outcome['convergence_time_s']:.2f} s{ratio}")
-    else:
-        lines.append(
-            f"  NOT converged: final {outcome['metric']} {outcome['final_metric']:.3f} m ({metric} wanted)"
-        )
-    if len(outcome["components"]) > 1:
-        lines.append(f"  graph has {len(outcome['components'])} components:")
-        for component in outcome["components"]:
-            state = (
-                f"converged from {component['convergence_time_s']:.2f} s"
-                if component["converged"]
-                else f"not converged (final {component['final_metric']:.3f} m)"
-            )
-            lines.append(f"    robots {component['robots']}: {state}")
-    lines.append(f"  results: {out_dir}")
-    return lines
+def _results_dir(args: argparse.Namespace, name: str) -> Path:
+    """``--out`` (refused when it is not empty, unless ``--force``: then cleared), or a fresh
+    ``runs/<name>-<date>-<time>-<random>`` that no other run has."""
+    if not args.out:
+        stamp = time.strftime("%Y%m%d-%H%M%S")
+        return Path("runs") / f"{name}-{stamp}-{uuid.uuid4().hex[:6]}"
+    out_dir = Path(args.out)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise UsageError(f"--out {out_dir}: exists and is not a directory")
+    if out_dir.is_dir() and any(out_dir.iterdir()):
+        if not args.force:
+            raise UsageError(f"--out {out_dir}: directory is not empty (--force clears it first)")
+        resolved = out_dir.resolve()
+        if resolved in (Path.cwd().resolve(), *Path.cwd().resolve().parents) or (resolved / ".git").exists():
+            raise UsageError(f"--out {out_dir}: will not clear the working directory or a repository")
+        for entry in out_dir.iterdir():
+            if entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry)
+            else:
+                entry.unlink()
+    return out_dir
+
+
+def _write_recordings(out_dir: Path, formats: list[str] | None) -> None:
+    """The recordings asked for with ``--record`` (``swarm.recording``), from the results on disk."""
+    if formats:
+        from swarm.recording import write_recordings
+
+        for path in write_recordings(out_dir, formats):
+            print(f"  recording: {path}")
+
+
+def _print_partial(out_dir: Path, formats: list[str] | None) -> None:
+    """After a run that ended early: its partial results, if any were written, to stdout."""
+    from swarm.results import summary_lines
+
+    metrics_path = out_dir / "metrics.json"
+    try:
+        outcome = json.loads(metrics_path.read_text())
+    except (OSError, ValueError):
+        return
+    if outcome.get("partial"):
+        print("\n".join(summary_lines(outcome, out_dir)), flush=True)
+        with contextlib.suppress(Exception):  # the recording of a partial run is a bonus
+            _write_recordings(out_dir, formats)
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    from swarm.distributed import RunFailed
+    from swarm.results import summary_lines
     from swarm.runner import run_scenario
 
     path = Path(args.scenario) if args.scenario else _find_default_scenario()
     scenario = _load_with_overrides(path, args)
-    out_dir = (
-        Path(args.out) if args.out else Path("runs") / f"{scenario.name}-{time.strftime('%Y%m%d-%H%M%S')}"
-    )
-    outcome = run_scenario(scenario, out_dir, path, progress=not args.quiet)
-    print("\n".join(_summary_lines(outcome, out_dir)))
+    if args.record:
+        from swarm.recording import check_formats
+
+        check_formats(args.record)
+    out_dir = _results_dir(args, scenario.name)
+    try:
+        outcome = run_scenario(scenario, out_dir, path, progress=not args.quiet)
+    except KeyboardInterrupt:
+        _print_partial(out_dir, args.record)
+        raise
+    except RunFailed:
+        _print_partial(out_dir, args.record)
+        raise
+    print("\n".join(summary_lines(outcome, out_dir)))
+    _write_recordings(out_dir, args.record)
     if outcome.get("incomplete"):  # e.g. a kill_server fault ended the run early
         print(f"swarm run: run incomplete: {outcome['incomplete']}", file=sys.stderr)
         return EXIT_NOT_MET
@@ -93,11 +132,12 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from swarm.results import report
+    from swarm.results import report, summary_lines
 
     out_dir = Path(args.run_dir)
     outcome = report(out_dir)
-    print("\n".join(_summary_lines(outcome, out_dir)))
+    print("\n".join(summary_lines(outcome, out_dir)))
+    _write_recordings(out_dir, args.record)
     if outcome.get("incomplete"):
         print(f"swarm report: run incomplete: {outcome['incomplete']}", file=sys.stderr)
         return EXIT_NOT_MET
@@ -198,6 +238,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         overrides["out"] = args.out
     if args.data:
         overrides["data"] = args.data
+    if args.quiet:
+        overrides["progress"] = False
     module = importlib.import_module(ALGORITHMS[args.algo])
     try:
         config = module.make_config(args.preset, overrides)
@@ -220,6 +262,11 @@ def cmd_collect(args: argparse.Namespace) -> int:
         "labels": args.labels,
         "seed": args.seed,
     }
+    if args.robot_from:  # the robot of a scenario: its speed limit and geometry
+        from swarm.scenario import load_scenario
+
+        robot = load_scenario(args.robot_from).robot
+        overrides.update(robot.model_dump())
     try:
         config = collect_config(args.preset, **overrides)
     except ValueError as error:
@@ -256,7 +303,16 @@ def build_parser() -> argparse.ArgumentParser:
         "success criterion is met, 1 when the run completed without meeting it, 2 on bad input.",
     )
     run.add_argument("scenario", nargs="?", help=f"scenario YAML file (default: {DEFAULT_SCENARIO})")
-    run.add_argument("--out", help="results directory (default: runs/<name>-<date>-<time>)")
+    run.add_argument(
+        "--out", help="results directory; refused when not empty (default: runs/<name>-<date>-<time>-<id>)"
+    )
+    run.add_argument("--force", action="store_true", help="clear a non-empty --out directory first")
+    run.add_argument(
+        "--record",
+        nargs="+",
+        choices=RECORDING_FORMATS,
+        help="also write a recording of the run: mcap (ROS 2 messages, for Foxglove), rerun (.rrd)",
+    )
     run.add_argument("--engine", choices=["kinematic", "pybullet"], help="override sim.engine")
     run.add_argument(
         "--controller", choices=["gnn", "local_consensus", "centralized"], help="override controller.kind"
@@ -274,6 +330,7 @@ def build_parser() -> argparse.ArgumentParser:
         "that was killed or ended early. Exit 0 success met, 1 not met or the run incomplete, 2 unreadable.",
     )
     report.add_argument("run_dir", help="results directory of a run")
+    report.add_argument("--record", nargs="+", choices=RECORDING_FORMATS, help="also write recordings")
     report.set_defaults(handler=cmd_report)
 
     sweep = commands.add_parser(
@@ -363,6 +420,9 @@ def build_parser() -> argparse.ArgumentParser:
     collect.add_argument("--normaliser", choices=["degree", "n_minus_1"], help="c_i of M and Phi")
     collect.add_argument("--labels", choices=["centralized", "local_consensus"], help="the expert")
     collect.add_argument("--seed", type=int, help="random seed")
+    collect.add_argument(
+        "--robot-from", metavar="SCENARIO", help="use the robot of this scenario (v_max, axle, offset, body)"
+    )
     collect.add_argument("--out", default="data/bc.npz", help="output file (default: data/bc.npz)")
     collect.set_defaults(handler=cmd_collect)
     return parser
@@ -388,7 +448,7 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print(f"swarm {args.command}: interrupted", file=sys.stderr)
-        return EXIT_BAD_INPUT
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

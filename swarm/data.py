@@ -61,6 +61,11 @@ class CollectConfig:
     labels: str = "centralized"  # or "local_consensus"
     gain: float = 1.0  # K of eq. 3.1, 1/s
     v_max_mps: float = 0.5
+    # the rest of the robot (swarm.robot.RobotParams; swarm collect --robot-from SCENARIO)
+    half_axle_m: float = 0.1
+    offset_m: float = 0.05
+    wheel_radius_m: float = 0.04
+    body_radius_m: float = 0.12
     control_period_s: float = 0.05
     episode_factor: float = 1.25  # longest episode = factor x (box half-diagonal / v_max)
     settled_m: float = 0.2  # an episode ends once max_pairwise has stayed <= settled_m for tail_s
@@ -77,7 +82,13 @@ class CollectConfig:
 
     @property
     def robot(self) -> RobotParams:
-        return RobotParams(v_max_mps=self.v_max_mps)
+        return RobotParams(
+            v_max_mps=self.v_max_mps,
+            half_axle_m=self.half_axle_m,
+            offset_m=self.offset_m,
+            wheel_radius_m=self.wheel_radius_m,
+            body_radius_m=self.body_radius_m,
+        )
 
     def check(self) -> None:
         self.spec  # noqa: B018 (validates the feature options)

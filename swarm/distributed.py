@@ -36,7 +36,13 @@ from swarm.acl import write_credentials
 from swarm.faults import PROCESS_FAULTS, add_fault_results
 from swarm.procs import Supervisor, free_tcp_port
 from swarm.report import write_pictures
-from swarm.results import prepare_results_dir, read_trajectory, summarize, write_metrics
+from swarm.results import (
+    prepare_results_dir,
+    read_trajectory,
+    summarize,
+    write_metrics,
+    write_partial_results,
+)
 from swarm.scenario import Scenario, ScenarioError, parse_scenario, resolve_model_path
 
 AGENTS_EXIT_GRACE_S = 5.0
@@ -286,6 +292,23 @@ def run_distributed(
 ) -> dict:
     """Run ``scenario`` as sim server + agent processes; returns the outcome (metrics.json).
 
+    Interrupted (Ctrl-C, SIGTERM), it stops every process, writes ``metrics.json`` and the plots of the
+    ticks on disk, marked partial, and raises ``KeyboardInterrupt`` again."""
+    try:
+        return _run_distributed(scenario, out_dir, scenario_path, progress)
+    except KeyboardInterrupt:
+        ticks = _TickCounter(Path(out_dir) / "trajectory.jsonl").update()
+        write_partial_results(
+            Path(out_dir), f"interrupted (Ctrl-C) after {ticks} of {scenario.steps + 1} ticks"
+        )
+        raise
+
+
+def _run_distributed(
+    scenario: Scenario, out_dir: Path, scenario_path: Path | None = None, progress: bool = True
+) -> dict:
+    """:func:`run_distributed` without the partial results of an interrupted run.
+
     Process faults of the scenario are done by a ``FaultInjector``. A ``kill_server`` fault ends
     the run early: the agents exit by themselves (``sim.server_lost_s``), metrics come from the
     trajectory so far and the outcome carries ``incomplete`` (the CLI then exits 1).
@@ -317,6 +340,7 @@ def run_distributed(
     python = sys.executable
     server_cmd = [python, "-m", "sim_server", "--scenario", str(out_dir / "scenario.yaml")]
     server_cmd += ["--out", str(out_dir), "--run", run_id, "--listen", endpoint, "--die-with-parent"]
+    server_cmd += ["--no-report"]
     server_cmd += ["--model", str(model)] if model else []
     common = ["--connect", endpoint, "--run", run_id, "--log-dir", str(logs), "--die-with-parent"]
     if scenario.sim.acl:  # fresh credentials (0600) in the results directory, each agent its own file
@@ -387,7 +411,7 @@ def run_distributed(
             f" (logs in {logs})"
         )
         if not killed_by_fault:
-            _write_partial_metrics(scenario, out_dir, adjacency, f"the run failed: {failure}")
+            write_partial_results(out_dir, f"the run failed: {failure}")
             raise RunFailed(failure)
         incomplete = (
             f"the sim server was killed by a kill_server fault at tick {faults.server_killed_tick}"
@@ -397,6 +421,7 @@ def run_distributed(
     if not len(times_s):
         raise RunFailed(f"no tick in the trajectory (logs in {logs})")
     if len(times_s) != steps + 1 and incomplete is None:
+        write_partial_results(out_dir, f"the trajectory has {len(times_s)} of {steps + 1} ticks")
         raise RunFailed(f"trajectory has {len(times_s)} of {steps + 1} ticks (logs in {logs})")
 
     outcome = summarize(scenario, times_s, poses, adjacency)
@@ -420,17 +445,6 @@ def run_distributed(
     write_metrics(out_dir, outcome)
     write_pictures(out_dir, scenario, times_s, poses, outcome)
     return outcome
-
-
-def _write_partial_metrics(scenario: Scenario, out_dir: Path, adjacency: np.ndarray, why: str) -> None:
-    """metrics.json and plots from whatever trajectory is on disk, marked ``incomplete``."""
-    times_s, poses, _ = read_trajectory(out_dir / "trajectory.jsonl")
-    if not len(times_s):
-        return
-    outcome = summarize(scenario, times_s, poses, adjacency)
-    outcome.update(incomplete=why, ticks_planned=scenario.steps)
-    write_metrics(out_dir, outcome)
-    write_pictures(out_dir, scenario, times_s, poses, outcome)
 
 
 def runtime_summary(

@@ -5,9 +5,10 @@ Layout::
     scenario.yaml       the resolved scenario, every default filled in
     trajectory.jsonl    one line per tick, flushed as it happens:
                         {"tick", "time_s", "poses": [[x, y, theta], ...]}
-    metrics.json        the outcome (see ``summarize``)
-    convergence.png     the metric over time
+    metrics.json        the outcome (see ``summarize``); ``partial`` when the run did not complete
+    convergence.png     the metric over time (``convergence.png.json``: what it shows, swarm.report)
     animation.gif       the robots and their graph edges
+    recording.mcap      on request (swarm.recording; recording.rrd for rerun)
     logs/               one log per process
 """
 
@@ -126,15 +127,110 @@ def summarize(
 
 
 def write_metrics(out_dir: Path, outcome: dict) -> None:
+    """``metrics.json``; ``partial`` is true when the outcome is of a run that did not complete
+    (``incomplete`` says why)."""
+    outcome["partial"] = bool(outcome.get("incomplete"))
     (out_dir / "metrics.json").write_text(json.dumps(outcome, indent=2) + "\n")
 
 
-def report(out_dir: Path) -> dict:
+def write_partial_results(out_dir: Path, why: str) -> dict | None:
+    """``metrics.json`` and the plots of a run that ended early, from what is on disk, marked partial
+    with ``why``; None (and nothing written) when there is not one complete tick to report on. Never
+    raises: it runs on the way out of a failed or interrupted run."""
+    import logging
+
+    from swarm.scenario import ScenarioError
+
+    try:
+        return report(out_dir, partial=why)
+    except (ScenarioError, OSError, ValueError) as error:
+        logging.getLogger(__name__).warning("no partial results in %s: %s", out_dir, error)
+        return None
+
+
+def summary_lines(outcome: dict, out_dir: Path | str) -> list[str]:
+    """What a finished run prints: its outcome, the faults it met and where its results are."""
+    lines = [
+        f"{outcome['scenario']}: {outcome['controller']} on {outcome['engine']}, {outcome['robots']} robots",
+    ]
+    if outcome.get("incomplete"):
+        lines.append(f"  PARTIAL: {outcome['incomplete']}")
+    faults = outcome.get("faults") or {}
+    live = faults.get("live_robots")
+    who = f" (live robots {live})" if live is not None and len(live) < outcome["robots"] else ""
+    metric = f"{outcome['metric']} <= {outcome['threshold']:g} m"
+    bound = outcome["lower_bound_s"]
+    if outcome["converged"]:
+        ratio = f", {outcome['ratio_to_lower_bound']:.2f}x the lower bound {bound:.2f} s" if bound else ""
+        lines.append(f"  converged{who}: {metric} from {outcome['convergence_time_s']:.2f} s{ratio}")
+    elif outcome.get("final_metric") is None:
+        lines.append("  NOT converged: no live robot at the end")
+    else:
+        lines.append(
+            f"  NOT converged{who}: final {outcome['metric']} {outcome['final_metric']:.3f} m"
+            f" ({metric} wanted)"
+        )
+    if len(outcome["components"]) > 1:
+        lines.append(f"  graph has {len(outcome['components'])} components:")
+        for component in outcome["components"]:
+            state = (
+                f"converged from {component['convergence_time_s']:.2f} s"
+                if component["converged"]
+                else f"not converged (final {component['final_metric']:.3f} m)"
+            )
+            lines.append(f"    robots {component['robots']}: {state}")
+    if faults:
+        lines += ["  " + line for line in fault_lines(faults)]
+    lines.append(f"  results: {out_dir}")
+    return lines
+
+
+def fault_lines(faults: dict) -> list[str]:
+    """The faults block of metrics.json in words: what was done, who is lost, what is down, what was lost."""
+    lines = []
+    for event in faults.get("events", []):
+        who = "" if event.get("robot") is None else f" robot {event['robot']}"
+        lines.append(f"fault: {event['kind']}{who} at {event['at_s']:.2f} s (tick {event['tick']})")
+    for fault in faults.get("scheduled", []):
+        if fault["kind"] in ("drop_link", "restore_link", "packet_loss", "delay"):
+            details = ", ".join(
+                f"{key} {fault[key]}"
+                for key in ("link", "direction", "p", "ticks", "until_s")
+                if key in fault
+            )
+            lines.append(f"fault: {fault['kind']} at {fault.get('at_s', 0.0):.2f} s ({details})")
+    if faults.get("agents_lost"):
+        lines.append(f"agents lost (killed, not restarted): robots {faults['agents_lost']}")
+    if faults.get("agents_restarted"):
+        lines.append(f"agents restarted: robots {faults['agents_restarted']}")
+    if faults.get("agents_hung_at_end"):
+        lines.append(f"agents hung at the end: robots {faults['agents_hung_at_end']}")
+    if faults.get("server_killed"):
+        lines.append("sim server killed")
+    if faults.get("links_down_at_end"):
+        lines.append(f"links down at the end: {faults['links_down_at_end']}")
+    counts = faults.get("messages") or {}
+    lost = {
+        name: counts.get(name, 0)
+        for name in ("lost", "dropped_by_fault", "lost_by_fault", "delayed_by_fault")
+    }
+    if any(lost.values()):
+        lost = {name: value for name, value in lost.items() if value}
+        lines.append(
+            "messages: " + ", ".join(f"{value} {name.replace('_', ' ')}" for name, value in lost.items())
+        )
+    if not faults.get("live_graph_connected", True):
+        lines.append("the live graph is split: no global consensus possible")
+    return lines
+
+
+def report(out_dir: Path, partial: str | None = None) -> dict:
     """Re-create ``metrics.json``, ``convergence.png`` and ``animation.gif`` from what a run left on
     disk, however it ended (``swarm report RUN_DIR``): the scenario, the trajectory up to its last
     complete line, and ``events.jsonl`` when there is one. Keys of an earlier ``metrics.json`` that
-    the trajectory cannot give (``processes``, ``runtime``, ...) are kept. Raises ``ScenarioError``
-    with one line when the directory cannot be read."""
+    the trajectory cannot give (``processes``, ``runtime``, ...) are kept. ``partial``: why the run
+    ended early (the outcome is then marked partial even if every tick is there). Raises
+    ``ScenarioError`` with one line when the directory cannot be read."""
     from swarm.scenario import ScenarioError, load_scenario
 
     out_dir = Path(out_dir)
@@ -166,7 +262,10 @@ def report(out_dir: Path) -> dict:
         previous = {}
     outcome = {**previous, **outcome}
     steps = scenario.steps
-    if len(times_s) < steps + 1:
+    if partial:
+        outcome["incomplete"] = partial
+        outcome["ticks_planned"] = steps
+    elif len(times_s) < steps + 1:
         outcome.setdefault("incomplete", f"the trajectory has {len(times_s)} of {steps + 1} ticks")
         outcome["ticks_planned"] = steps
     if scenario.faults:  # judged on the live robots, from events.jsonl and the agents' records

@@ -15,8 +15,14 @@ from swarm.controllers import BatchedController, Centralized, LocalConsensus
 from swarm.faults import PROCESS_FAULTS, LinkFaults, add_fault_results, message_max_age_ticks
 from swarm.kinematic import KinematicSim
 from swarm.report import write_pictures
-from swarm.results import TrajectoryWriter, prepare_results_dir, summarize, write_metrics
-from swarm.scenario import Scenario, ScenarioError
+from swarm.results import (
+    TrajectoryWriter,
+    prepare_results_dir,
+    summarize,
+    write_metrics,
+    write_partial_results,
+)
+from swarm.scenario import Scenario, ScenarioError, engine_warnings
 
 log = logging.getLogger(__name__)
 
@@ -51,6 +57,8 @@ def run_kinematic(
                 f"faults[{index}].kind: {fault.kind} needs the pybullet engine (the kinematic engine runs"
                 " no processes)"
             )
+    for warning in engine_warnings(scenario):
+        log.warning("%s", warning)
     controller = build_controller(scenario, scenario_path)
     adjacency = scenario.adjacency()
     sim = KinematicSim(
@@ -73,12 +81,17 @@ def run_kinematic(
         from tqdm import tqdm
 
         ticks = tqdm(ticks, desc=f"{scenario.name} (kinematic)", unit="tick", leave=False)
-    with TrajectoryWriter(out_dir / "trajectory.jsonl") as trajectory:
-        for tick in ticks:
-            poses[tick] = sim.poses[0]
-            trajectory.write(tick, times[tick], poses[tick])
-            if tick < steps:
-                sim.step()
+    try:
+        with TrajectoryWriter(out_dir / "trajectory.jsonl") as trajectory:
+            for tick in ticks:
+                poses[tick] = sim.poses[0]
+                trajectory.write(tick, times[tick], poses[tick])
+                if tick < steps:
+                    sim.step()
+    except KeyboardInterrupt:  # the results of the ticks so far, marked partial, then out
+        done = (out_dir / "trajectory.jsonl").read_bytes().count(b"\n")
+        write_partial_results(out_dir, f"interrupted (Ctrl-C) after {done} of {steps + 1} ticks")
+        raise
     final_adjacency = sim.adjacency()[0]
     outcome = summarize(scenario, times, poses, final_adjacency)
     if scenario.faults:

@@ -7,9 +7,11 @@ the reason.
 
 from __future__ import annotations
 
+import logging
 import math
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import yaml
@@ -422,10 +424,74 @@ def _location(loc: tuple) -> str:
     return "".join(parts) or "(top level)"
 
 
+def _known_keys(model: type[BaseModel], parent: tuple) -> list[str]:
+    """The keys (field names and their aliases) of the model found at ``parent`` below ``model``."""
+    import typing
+
+    for part in parent:
+        if isinstance(part, int):
+            continue
+        field = next(
+            (
+                info
+                for name, info in model.model_fields.items()
+                if part == name
+                or (isinstance(info.validation_alias, AliasChoices) and part in info.validation_alias.choices)
+            ),
+            None,
+        )
+        if field is None:
+            return []
+        candidates = [field.annotation]
+        found = None
+        while candidates:  # unwrap Optional, list, tuple and unions down to a model
+            annotation = candidates.pop()
+            if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+                found = annotation
+                break
+            candidates.extend(typing.get_args(annotation))
+        if found is None:
+            return []
+        model = found
+    keys = []
+    for name, info in model.model_fields.items():
+        keys.append(name)
+        if isinstance(info.validation_alias, AliasChoices):
+            keys += [choice for choice in info.validation_alias.choices if isinstance(choice, str)]
+    return keys
+
+
+def _typo(errors: Sequence[Any]) -> dict | None:
+    """An unknown key that is close to a known key (a typo), preferring one whose sibling is missing;
+    the error gets ``suggestion``."""
+    import difflib
+
+    extras = [e for e in errors if e["type"] == "extra_forbidden"]
+    missing = {(tuple(e["loc"][:-1]), e["loc"][-1]) for e in errors if e["type"] == "missing"}
+    best = None
+    for extra in extras:
+        parent, key = tuple(extra["loc"][:-1]), str(extra["loc"][-1])
+        siblings = [name for where, name in missing if where == parent]
+        close = difflib.get_close_matches(key, [str(name) for name in siblings], n=1, cutoff=0.5)
+        if close:
+            return {**extra, "suggestion": close[0]}
+        if best is None:
+            close = difflib.get_close_matches(key, _known_keys(Scenario, parent), n=1, cutoff=0.6)
+            if close:
+                best = {**extra, "suggestion": close[0]}
+    return best
+
+
 def describe_validation_error(error: ValidationError) -> str:
-    """First pydantic error as ``key: reason`` (plus how many more there are)."""
+    """First pydantic error as ``key: reason`` (plus how many more there are); an unknown key that
+    looks like a typo of a known one comes first, with the suggestion."""
     errors = error.errors()
     first = errors[0]
+    typo = _typo(errors)
+    if typo is not None:
+        more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
+        key, suggestion = typo["loc"][-1], typo["suggestion"]
+        return f"{_location(tuple(typo['loc']))}: unknown key '{key}', did you mean '{suggestion}'?{more}"
     loc = tuple(part for part in first["loc"] if not (isinstance(part, str) and part.startswith("function-")))
     message = first["msg"].removeprefix("Value error, ")
     keyed = (first.get("ctx") or {}).get("error")
@@ -448,8 +514,59 @@ def parse_scenario(data: object, source: str = "<scenario>") -> Scenario:
         raise ScenarioError(f"{source}: {describe_validation_error(error)}") from None
 
 
+KINEMATIC_IGNORES = (
+    "mode",
+    "physics_hz",
+    "solver_iterations",
+    "deadline_s",
+    "neighbour_deadline_s",
+    "watchdog_s",
+    "server_lost_s",
+    "acl",
+)
+"""``sim`` keys of the PyBullet runtime (bodies, processes, Zenoh) that the kinematic engine ignores."""
+
+
+def engine_warnings(scenario: Scenario) -> list[str]:
+    """``sim`` keys set away from their default that the scenario's engine ignores, one line each."""
+    warnings = []
+    if scenario.sim.engine == "kinematic":
+        defaults = SimSpec()
+        for key in KINEMATIC_IGNORES:
+            value = getattr(scenario.sim, key)
+            if value != getattr(defaults, key):
+                warnings.append(
+                    f"sim.{key}: {value!r} does not apply to the kinematic engine (no bodies, no processes,"
+                    " no network); it is ignored"
+                )
+    return warnings
+
+
+def threshold_warnings(scenario: Scenario) -> list[str]:
+    """A PyBullet threshold that the robots' bodies cannot reach
+    (``swarm.metrics.min_gathered_max_pairwise_m``), as one line; none when it can."""
+    from swarm import metrics
+
+    warnings = []
+    if scenario.success.metric == "max_pairwise":
+        count, radius_m = scenario.robots.count, scenario.robot.body_radius_m
+        smallest_m = metrics.min_gathered_max_pairwise_m(count, radius_m)
+        threshold_m = scenario.success.threshold_for("pybullet")
+        if threshold_m < smallest_m and (
+            scenario.sim.engine == "pybullet" or isinstance(scenario.success.threshold, EngineThresholds)
+        ):
+            exact = "" if count <= 8 else " at least"
+            warnings.append(
+                f"success.threshold: {threshold_m:g} m is below what {count} bodies of radius {radius_m:g} m"
+                f" allow on the pybullet engine (max_pairwise{exact} {smallest_m:.3f} m when packed);"
+                " the run cannot converge there"
+            )
+    return warnings
+
+
 def load_scenario(path: str | Path) -> Scenario:
-    """Read, validate and check a scenario file; any problem raises one ``ScenarioError`` line."""
+    """Read, validate and check a scenario file; any problem raises one ``ScenarioError`` line.
+    A threshold that the bodies cannot reach is logged as a warning (``threshold_warnings``)."""
     path = Path(path)
     try:
         text = path.read_text()
@@ -474,6 +591,8 @@ def load_scenario(path: str | Path) -> Scenario:
             raise ScenarioError(f"{path}: {key}: {error}") from None
     if scenario.controller.model is not None:
         resolve_model_path(scenario.controller.model, path)
+    for warning in threshold_warnings(scenario):
+        logging.getLogger(__name__).warning("%s: %s", path, warning)
     return scenario
 
 

@@ -19,7 +19,7 @@ import numpy as np
 import psutil
 import pytest
 import yaml
-from test_runtime import PROJECT_ROOT, Run, agent_records
+from test_runtime import PROJECT_ROOT, Run, agent_records, max_pairwise_of
 
 from swarm import metrics
 from swarm.results import read_trajectory
@@ -78,8 +78,8 @@ def test_killed_hung_and_restarted_agents(tmp_path):
     ]
     path, scenario = fault_scenario(tmp_path, "kill-agent", duration=14.0, faults=faults)
     out = tmp_path / "out"
-    run = Run(path, out)
-    code, _, stderr = run.finish()
+    run = Run(path, out, "--record", "mcap")
+    code, stdout, stderr = run.finish()
     assert code in (0, 1), stderr
     assert run.survivors() == []
 
@@ -141,6 +141,43 @@ def test_killed_hung_and_restarted_agents(tmp_path):
     assert outcome["faults"]["events"] == events
     assert outcome["faults"]["agents_lost"] == [3] and outcome["faults"]["agents_restarted"] == [0]
     assert outcome["faults"]["live_robots"] == live and outcome["converged"] is True
+
+    # The printed summary names what happened; the plot draws the live robots' metric over the faded
+    # all-robot curve and marks every fault where the runner did it (plot data read from its artists).
+    assert "kill_agent robot 3 at 1.50 s" in stdout and "restart_agent robot 0 at 2.50 s" in stdout
+    assert "hang_agent robot 6 at 2.00 s" in stdout
+    assert "agents lost (killed, not restarted): robots [3]" in stdout
+    assert "agents restarted: robots [0]" in stdout
+    assert f"converged (live robots {live})" in stdout
+    plot = json.loads((out / "convergence.png.json").read_text())
+    lines = {line["gid"]: line for line in plot["lines"]}
+    times_s = np.asarray(lines["judged"]["x"])
+    assert np.allclose(lines["judged"]["y"], max_pairwise_of(poses[:, live]), atol=1e-5)
+    assert str(live) in lines["judged"]["label"]
+    assert np.allclose(lines["all_robots"]["y"], max_pairwise_of(poses), atol=1e-5)
+    assert lines["all_robots"]["alpha"] < 0.5
+    for event in events:
+        mark = lines[f"fault:{event['kind']} robot {event['robot']}"]
+        assert mark["x"] == [pytest.approx(event["tick"] * dt)] * 2
+    assert lines["converged"]["x"][0] == pytest.approx(outcome["convergence_time_s"])
+    # ... and the MCAP recording holds every tick, the applied commands and the faults.
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    recorded: dict[str, list] = {}
+    with open(out / "recording.mcap", "rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        for _, channel, _, decoded in reader.iter_decoded_messages():
+            recorded.setdefault(channel.topic, []).append(decoded)
+    assert len(recorded["/robots/poses"]) == len(times_s) == steps + 1
+    assert [p.position.x for p in recorded["/robots/poses"][-1].poses] == pytest.approx(poses[-1, :, 0])
+    wheels = wheels_by_tick(out)
+    speeds = [msg.twist.linear.x for msg in recorded["/robot_1/cmd_vel"]]
+    assert len(speeds) == len(wheels) + 1 and speeds[-1] == 0.0  # the last tick applies nothing
+    assert np.allclose(speeds[:-1], 0.5 * (wheels[:, 1, 0] + wheels[:, 1, 1]), atol=1e-12)
+    assert [json.loads(msg.data)["label"] for msg in recorded["/faults"]] == [
+        f"{e['kind']} robot {e['robot']}" for e in events
+    ]
 
 
 def test_kill_server_fault_ends_the_run_and_the_agents_exit_cleanly(tmp_path):

@@ -116,6 +116,12 @@ class Run:
             time.sleep(0.05)
 
 
+def max_pairwise_of(poses: np.ndarray) -> np.ndarray:
+    """Largest distance between two robots at each tick, computed here (not by swarm.metrics)."""
+    xy = poses[..., :2]
+    return np.array([max(np.hypot(*(a - b)) for a in frame for b in frame) for frame in xy])
+
+
 def agent_records(out: Path) -> dict[int, dict]:
     return {int(p.stem.split("_")[1]): json.loads(p.read_text()) for p in (out / "logs").glob("agent_*.json")}
 
@@ -183,11 +189,28 @@ def test_ctrl_c_mid_run_stops_every_process(tmp_path):
     run.watch()
     assert len(run.seen) >= 8  # server, launcher, 6 agents
     run.process.send_signal(signal.SIGINT)
-    code, _, stderr = run.finish(timeout_s=30)
-    assert code == 2 and "interrupted" in stderr
+    code, stdout, stderr = run.finish(timeout_s=30)
+    assert code == 130 and "interrupted" in stderr
     assert run.survivors() == []
-    stats = json.loads((tmp_path / "out" / "server_stats.json").read_text())
+    out = tmp_path / "out"
+    stats = json.loads((out / "server_stats.json").read_text())
     assert stats["exit"] == "interrupted"
+    # The run ends with its results, from the ticks on disk, marked partial in the file and on the plot.
+    times_s, poses, _ = read_trajectory(out / "trajectory.jsonl")
+    assert 10 <= len(times_s) < 2401
+    outcome = json.loads((out / "metrics.json").read_text())
+    assert outcome["partial"] is True and outcome["incomplete"].startswith("interrupted (Ctrl-C)")
+    assert outcome["ticks"] == len(times_s) - 1 and outcome["ticks_planned"] == 2400
+    assert "PARTIAL: interrupted (Ctrl-C)" in stdout and f"results: {out}" in stdout
+    plot = json.loads((out / "convergence.png.json").read_text())
+    assert plot["title"].startswith("PARTIAL: ")
+    assert [text["gid"] for text in plot["texts"]] == ["partial"]
+    judged = next(line for line in plot["lines"] if line["gid"] == "judged")
+    assert np.allclose(judged["y"], max_pairwise_of(poses), atol=1e-5)  # the curve is this run's
+    assert judged["x"] == pytest.approx(times_s.tolist())
+    with Image.open(out / "animation.gif") as gif:
+        assert gif.n_frames >= 2
+        assert Image.open(out / "convergence.png").size[0] > 0
 
 
 def test_a_killed_agent_stops_its_robot_and_the_run_goes_on(tmp_path):

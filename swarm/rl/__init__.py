@@ -5,7 +5,10 @@
 - ``swarm.rl.consensus_v0``: the multi-agent PettingZoo env (every robot an agent, local observations).
 - ``swarm.rl.dqn``: DQN on ``swarm/Consensus-v0`` with Stable-Baselines3 (``swarm train --algo dqn``).
 
-Importing ``swarm.rl`` registers the Gymnasium id; it does not import torch.
+Importing ``swarm.rl`` registers the Gymnasium id; it does not import torch. Without importing it:
+``gymnasium.make("swarm.rl:swarm/Consensus-v0")`` (Gymnasium imports the module named before the
+colon). The package also declares ``register_envs`` as its ``gymnasium.envs`` entry point, which the
+Gymnasium versions with the plugin system (0.26-0.29) call when ``gymnasium`` is imported.
 """
 
 from __future__ import annotations
@@ -14,5 +17,11 @@ import gymnasium
 
 ENV_ID = "swarm/Consensus-v0"
 
-if ENV_ID not in gymnasium.registry:
-    gymnasium.register(id=ENV_ID, entry_point="swarm.rl.consensus_env:ConsensusEnv")
+
+def register_envs() -> None:
+    """Register ``swarm/Consensus-v0`` (idempotent); the ``gymnasium.envs`` entry point of the package."""
+    if ENV_ID not in gymnasium.registry:
+        gymnasium.register(id=ENV_ID, entry_point="swarm.rl.consensus_env:ConsensusEnv")
+
+
+register_envs()
