@@ -251,10 +251,8 @@ def _accepted_value_is_sane(decoded: object) -> bool:
     if isinstance(decoded, wire.Pose):
         values = (decoded.time_s, decoded.x_m, decoded.y_m, decoded.theta_rad)
         bounds = (wire.MAX_TIME_S, wire.MAX_COORD_M, wire.MAX_COORD_M, wire.MAX_ANGLE_RAD)
-        return (
-            0 <= decoded.tick <= wire.MAX_TICK
-            and decoded.time_s >= 0
-            and all(math.isfinite(v) and abs(v) <= bound for v, bound in zip(values, bounds, strict=True))
+        return 0 <= decoded.tick <= wire.MAX_TICK and decoded.time_s >= 0 and all(
+            math.isfinite(v) and abs(v) <= bound for v, bound in zip(values, bounds, strict=True)
         )
     if isinstance(decoded, wire.Command):
         return 0 <= decoded.tick <= wire.MAX_TICK and all(
