@@ -141,6 +141,9 @@ def write_partial_results(out_dir: Path, why: str) -> dict | None:
 
     from swarm.scenario import ScenarioError
 
+    trajectory = Path(out_dir) / "trajectory.jsonl"
+    if not trajectory.is_file() or trajectory.stat().st_size == 0:
+        return None  # ended before its first tick: nothing to report on
     try:
         return report(out_dir, partial=why)
     except (ScenarioError, OSError, ValueError) as error:
