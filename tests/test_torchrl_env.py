@@ -1,0 +1,146 @@
+"""The batched swarm as a TorchRL environment (swarm.rl.torchrl_env): TorchRL's own spec check, its
+collector, partial resets, and the shaped return against its closed form; bench/ppo_torchrl.py's
+training end to end on a tiny budget."""
+
+from __future__ import annotations
+
+import csv
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("torchrl", reason="torchrl is not installed (pip install -e .[torchrl])")
+
+import torch
+from tensordict.nn import TensorDictModule
+from torchrl.collectors import Collector
+from torchrl.envs.utils import RandomPolicy, check_env_specs
+
+from swarm import metrics
+from swarm.policy import load_policy
+from swarm.rl.torchrl_env import SwarmTorchRLEnv
+from swarm.train import ppo
+
+ROOT = Path(__file__).resolve().parent.parent
+DEFAULT_MODEL = ROOT / "models" / "gnn_default.npz"
+
+
+def make_env(**overrides) -> SwarmTorchRLEnv:
+    config = ppo.make_config("tiny", {"init_policy": str(DEFAULT_MODEL), **overrides})
+    return SwarmTorchRLEnv(config, hops=8, feature_scale_m=load_policy(DEFAULT_MODEL).feature_scale_m)
+
+
+def gnn_policy(env: SwarmTorchRLEnv) -> TensorDictModule:
+    """The BC GNN's deterministic action, as ``swarm.policy`` runs it."""
+    robot = env.robot
+    actor = ppo.Actor(ppo.load_gnn(env.config, robot), robot, 0.05, False, "velocity")
+    return TensorDictModule(
+        lambda features: actor.mean(features).detach(),
+        in_keys=[("agents", "observation")],
+        out_keys=[("agents", "action")],
+    )
+
+
+def test_env_passes_torchrl_check_env_specs():
+    env = make_env()
+    check_env_specs(env, seed=0)
+    td = env.reset()
+    mask = td.get(("agents", "mask"))
+    counts = env.swarm.count
+    assert torch.equal(mask, torch.arange(env.n_max)[None, :] < counts[:, None])
+    # on an episode's first tick nobody has heard anybody (DESIGN.md timing)
+    assert torch.count_nonzero(td.get(("agents", "observation"))) == 0
+
+
+def test_collector_runs_a_few_batches():
+    env = make_env(num_envs=3)
+    collector = Collector(
+        env, RandomPolicy(env.action_spec), frames_per_batch=3 * 8, total_frames=3 * 8 * 2,
+        auto_register_policy_transforms=False,
+    )  # fmt: skip
+    batches = list(collector)
+    collector.shutdown()
+    assert len(batches) == 2
+    for data in batches:
+        assert data.batch_size == torch.Size([3, 8])
+        assert data.get(("agents", "action")).shape == (3, 8, env.n_max, 2)
+        assert torch.isfinite(data.get(("next", "reward"))).all()
+        # the robots moved: the observation is no longer the first tick's zeros
+        assert torch.count_nonzero(data.get(("next", "agents", "observation"))) > 0
+
+
+def test_shaped_return_is_minus_time_plus_the_start_potential():
+    """gamma = 1: the shaping telescopes, so an episode's return is -T + D0 / (2 v_max), with D0 the
+    start's diameter (numpy, from the poses the episode started from); auto partial resets start
+    new episodes only in the swarms that ended."""
+    env = make_env(num_envs=3, gamma=1.0, sizes=(4, 6), max_episode_s=60.0)
+    policy = gnn_policy(env)
+    v_max, dt = env.config.v_max_mps, env.config.control_period_s
+
+    def start_diameters() -> np.ndarray:
+        positions, counts = env.swarm.positions.double().numpy(), env.swarm.count.numpy()
+        return np.array([float(metrics.max_pairwise(positions[b, : counts[b]])) for b in range(3)])
+
+    td = env.reset()
+    diameter0 = start_diameters()
+    returns, ticks = np.zeros(3), np.zeros(3, dtype=int)
+    checked = 0
+    for _ in range(800):
+        td = policy(td)
+        before = env.swarm.positions.clone()
+        td, td_next = env.step_and_maybe_reset(td)
+        returns += td.get(("next", "reward"))[:, 0].double().numpy()
+        ticks += 1
+        done = td.get(("next", "done"))[:, 0].numpy()
+        terminated = td.get(("next", "terminated"))[:, 0].numpy()
+        for b in np.flatnonzero(done):
+            assert terminated[b], "the GNN converges on these small graphs well within 60 s"
+            np.testing.assert_allclose(returns[b], -ticks[b] * dt + diameter0[b] / (2 * v_max), atol=1e-4)
+            checked += 1
+        if done.any():
+            fresh = start_diameters()
+            # only the swarms that ended were redrawn
+            moved = (env.swarm.positions - before).abs().amax(dim=(1, 2)).numpy()
+            assert np.all(moved[~done] < v_max * dt + 1e-6)
+            diameter0[done] = fresh[done]
+            returns[done], ticks[done] = 0.0, 0
+        td = td_next
+    assert checked >= 6, f"only {checked} episodes ended"
+
+
+def test_bench_training_runs_end_to_end(tmp_path):
+    """bench/ppo_torchrl.py train: TorchRL's collector, GAE and ClipPPOLoss for two updates."""
+    config = tmp_path / "tiny.yaml"
+    config.write_text(
+        f"init_policy: {DEFAULT_MODEL}\nnum_envs: 4\nrollout_steps: 16\nupdates: 2\nsizes: [4, 8]\n"
+        "epochs: 2\nminibatches: 2\ncritic_warmup_updates: 0\neval_every: 2\neval_cells: [[cycle, 6]]\n"
+        "eval_starts: 4\neval_max_s: 20.0\nlr: 1.0e-3\n"
+    )
+    out = tmp_path / "run"
+    result = subprocess.run(
+        [sys.executable, str(ROOT / "bench" / "ppo_torchrl.py"), "train", "--config", str(config),
+         "--out", str(out), "--quiet"],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr[-2000:]
+    with open(out / "log.csv", newline="") as file:
+        rows = list(csv.DictReader(file))
+    assert [int(row["update"]) for row in rows] == [1, 2]
+    assert all(float(row["approx_kl"]) > 0 for row in rows), "the policy was updated"
+    policy = load_policy(out / "policy.npz")
+    assert policy.metadata["training"]["trainer"] == "torchrl"
+    start = np.load(DEFAULT_MODEL)
+    trained = np.load(out / "policy.npz")
+    assert any(not np.allclose(trained[name], start[name]) for name in start.files if name != "__metadata__")
+
+
+def test_bench_training_refuses_a_missing_config(tmp_path):
+    result = subprocess.run(
+        [sys.executable, str(ROOT / "bench" / "ppo_torchrl.py"), "train", "--config",
+         str(tmp_path / "no.yaml")],
+        capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert result.returncode == 2 and "no.yaml" in result.stderr
