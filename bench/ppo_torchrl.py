@@ -185,7 +185,7 @@ def train(args: argparse.Namespace) -> Path:
     eval_rows: list[dict] = []
     episode_return = torch.zeros(B, dtype=torch.float64)
     episode_ticks = torch.zeros(B, dtype=torch.long)
-    started = time.perf_counter()
+    started, cpu_started = time.perf_counter(), time.process_time()
     env_steps = 0
 
     def run_eval(update: int) -> None:
@@ -267,6 +267,7 @@ def train(args: argparse.Namespace) -> Path:
             "policy_std": float(actor.log_std.detach().exp().mean()),
             "lr": optimizer.param_groups[0]["lr"],
             "time_s": round(time.perf_counter() - started, 2),
+            "cpu_s": round(time.process_time() - cpu_started, 2),
         }
         log_rows.append(row)
         ppo.write_csv(out / "log.csv", log_rows)
@@ -340,6 +341,8 @@ def evaluate_policies(models: dict[str, str], starts: int, count: int, max_durat
         factories["local_consensus_tuned"] = lambda n, g=gain: LocalConsensus(robot, g)
         poses, adjacency, _ = cell_starts(config, topology, count)
         lower = np.array([metrics.lower_bound_s(p[:, :2], 0.2, robot.v_max_mps) for p in poses])
+        # the undiscounted shaped return of a start is -t - Phi(s_0) = -t + D0 / (2 v_max)
+        start_potential = metrics.max_pairwise(poses[..., :2]) / (2 * robot.v_max_mps)
         times = {}
         for name, factory in factories.items():
             sim = KinematicSim(robot, factory(count), 0.05, poses, adjacency)
@@ -364,6 +367,7 @@ def evaluate_policies(models: dict[str, str], starts: int, count: int, max_durat
                     "median_ratio_to_lower_bound": float(np.median(values[ok] / lower[ok]))
                     if ok.any()
                     else None,
+                    "mean_return_s": float(np.mean(start_potential - values)) if ok.all() else None,
                 }
             )
     return rows
@@ -385,47 +389,53 @@ def run_summary(run: Path) -> dict:
     }
 
 
+def _smooth(values: list[float], width: int = 5) -> np.ndarray:
+    """Running mean over the last ``width`` updates (NaN updates skipped)."""
+    values = np.asarray(values, dtype=float)
+    out = np.full_like(values, np.nan)
+    for i in range(len(values)):
+        window = values[max(0, i - width + 1) : i + 1]
+        if np.isfinite(window).any():
+            out[i] = np.nanmean(window)
+    return out
+
+
 def plot(runs: dict[str, Path], path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 3, figsize=(16, 4.5), dpi=110)
+    fig, axes = plt.subplots(2, 2, figsize=(13, 8), dpi=110)
     colors = {"hand-written": "tab:blue", "torchrl": "tab:orange"}
     for name, run in runs.items():
         log, evals = read_csv(run / "log.csv"), read_csv(run / "eval.csv")
         color = colors.get(name)
         wall = [row["time_s"] for row in log]
-        axes[0].plot(wall, [row["episode_return"] for row in log], color=color, alpha=0.8, label=name)
-        axes[1].plot(
-            [row["env_steps"] for row in log], [row["episode_return"] for row in log], color=color, label=name
-        )
-        # the evaluation's wall time: the hand-written loop logs it per update, not per evaluation
+        ticks = [row["env_steps"] for row in log]
+        returns = [row["episode_return"] for row in log]
+        for ax, x in ((axes[0, 0], wall), (axes[0, 1], ticks)):
+            ax.plot(x, returns, color=color, alpha=0.25)
+            ax.plot(x, _smooth(returns), color=color, label=f"{name} (mean of 5 updates)")
+        # the wall time at the end of the update whose iterate was evaluated (update 0: the start)
         at = {row["update"]: row["time_s"] for row in log}
-        eval_wall = [row.get("time_s") or at.get(row["update"], 0.0) for row in evals]
-        for cell, style in (("cycle20", "-"), ("line20", "--")):
-            axes[2].plot(
-                eval_wall,
-                [row[f"{cell}_median_s"] for row in evals],
-                style,
-                marker="o",
-                ms=3,
-                color=color,
-                label=f"{name} {cell}",
-            )
-    axes[0].set(
-        xlabel="wall time (s)", ylabel="shaped return per episode", title="training return vs wall time"
-    )
-    axes[1].set(
-        xlabel="swarm ticks", ylabel="shaped return per episode", title="training return vs swarm ticks"
-    )
-    axes[2].set(
-        xlabel="wall time (s)",
-        ylabel="median convergence time (s)",
-        title="deterministic policy, 32 fixed starts, N = 20",
-    )
-    for ax in axes:
+        eval_wall = [at.get(row["update"], 0.0) for row in evals]
+        eval_ticks = [row["env_steps"] for row in evals]
+        for ax, x in ((axes[1, 0], eval_wall), (axes[1, 1], eval_ticks)):
+            for cell, style in (("cycle20", "-"), ("line20", "--")):
+                values = [row[f"{cell}_median_s"] for row in evals]
+                ax.plot(x, values, style, marker="o", ms=3, color=color, label=f"{name} {cell}")
+    for ax, xlabel in ((axes[0, 0], "wall time (s)"), (axes[0, 1], "swarm ticks")):
+        ax.set(
+            xlabel=xlabel, ylabel="shaped return per training episode", title=f"training return vs {xlabel}"
+        )
+    for ax, xlabel in ((axes[1, 0], "wall time (s)"), (axes[1, 1], "swarm ticks")):
+        ax.set(
+            xlabel=xlabel,
+            ylabel="median convergence time (s)",
+            title="deterministic policy, 32 fixed starts, N = 20",
+        )
+    for ax in axes.flat:
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=7)
     fig.tight_layout()
@@ -464,14 +474,14 @@ def compare(args: argparse.Namespace) -> None:
         )
     lines += [
         "",
-        "| graph | controller | success | median t (s) | t / tuned LC | t / LB |",
-        "|---|---|---|---|---|---|",
+        "| graph | controller | success | median t (s) | t / tuned LC | t / LB | return (s) |",
+        "|---|---|---|---|---|---|---|",
     ]
     for row in rows:
         lines.append(
             f"| {row['topology']} | {row['controller']} | {row['success_rate']:.1%} | "
             f"{row['median_time_s']:.2f} | {row['ratio_of_medians_to_tuned_lc']:.3f} | "
-            f"{row['median_ratio_to_lower_bound']:.3f} |"
+            f"{row['median_ratio_to_lower_bound']:.3f} | {row['mean_return_s']:.2f} |"
         )
     header = [
         "# PPO side by side: the hand-written loop and TorchRL's MAPPO",
@@ -483,7 +493,8 @@ def compare(args: argparse.Namespace) -> None:
         "tuned LC: local consensus with its gain tuned per graph (`tuned_lc.json`); t / tuned LC: ratio "
         "of medians; "
         "t / LB: median per-start ratio to the lower bound. Final training return: mean shaped return of "
-        "the episodes that ended in the last 5 updates.",
+        "the episodes that ended in the last 5 updates. Return (s): the deterministic policy's undiscounted "
+        "shaped return, -t + max_pairwise(start) / (2 v_max), mean over the starts.",
         "",
     ]
     (out / "comparison.md").write_text("\n".join(header + lines) + "\n")

@@ -51,7 +51,7 @@ def test_env_passes_torchrl_check_env_specs():
     mask = td.get(("agents", "mask"))
     counts = env.swarm.count
     assert torch.equal(mask, torch.arange(env.n_max)[None, :] < counts[:, None])
-    # on an episode's first tick nobody has heard anybody (DESIGN.md timing)
+    # on an episode's first tick nobody has heard anybody (messages are a tick old)
     assert torch.count_nonzero(td.get(("agents", "observation"))) == 0
 
 

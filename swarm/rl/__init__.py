@@ -4,6 +4,8 @@
 - ``swarm.rl.consensus_env``: the thesis's single-agent Gymnasium env, registered as ``swarm/Consensus-v0``.
 - ``swarm.rl.consensus_v0``: the multi-agent PettingZoo env (every robot an agent, local observations).
 - ``swarm.rl.dqn``: DQN on ``swarm/Consensus-v0`` with Stable-Baselines3 (``swarm train --algo dqn``).
+- ``swarm.rl.torchrl_env``: the batched torch swarm of ``swarm train --algo ppo`` as a TorchRL
+  multi-agent ``EnvBase`` (extra ``torchrl``; ``bench/ppo_torchrl.py`` trains TorchRL's MAPPO on it).
 
 Importing ``swarm.rl`` registers the Gymnasium id; it does not import torch. Without importing it:
 ``gymnasium.make("swarm.rl:swarm/Consensus-v0")`` (Gymnasium imports the module named before the

@@ -5,8 +5,9 @@ padded, stepped together) in ``torchrl.envs.EnvBase`` with batch size ``[B]`` an
 ``"agents"`` of shape ``[B, n_max]`` (TorchRL's multi-agent layout, as in its MAPPO/IPPO
 tutorials), so TorchRL's collectors, GAE and ``ClipPPOLoss`` train the same task as the
 hand-written loop. Everything task-side is that loop's: the episodes (``EpisodeSampler``: graph
-kind, N, start poses), the robot-frame GNN features (DESIGN.md timing: hop-h information is h ticks
-old), the saturation and the reward, shared by all robots, per tick of ``dt`` seconds::
+kind, N, start poses), the robot-frame GNN features (the timing of ``swarm.kinematic``: hop-h
+information is h ticks old), the saturation and the reward, shared by all robots, per tick of
+``dt`` seconds::
 
     r_t = -dt + shaping * (gamma * Phi(s_{t+1}) - Phi(s_t)),     Phi(s) = -max_pairwise(s) / (2 v_max)
 
