@@ -73,53 +73,13 @@ class _TeamValue(nn.Module):
         return value[..., None, None].expand(*value.shape, self.n_max, 1)
 
 
-def load_config(path: str | None, overrides: dict):
-    from swarm.train import ppo
-
-    data = yaml.safe_load(Path(path).read_text()) or {} if path else {}
-    data.update(overrides)
-    return ppo.make_config("default", data)
-
-
-def train(args: argparse.Namespace) -> Path:
-    """TorchRL MAPPO on ``swarm.rl.torchrl_env``; returns the exported policy file."""
+def build_mappo(config, actor, critic, n_max: int):
+    """TorchRL's pieces around the loop's networks: the stochastic policy (``IndependentNormal``
+    around ``sat(GNN(x))``), the critic as a ``ValueOperator`` and ``ClipPPOLoss`` with GAE, keyed
+    for the ``"agents"`` group and masked to the robots that exist. Returns ``(policy, loss)``."""
     from tensordict.nn import TensorDictModule
-    from torchrl.collectors import Collector
-    from torchrl.data import LazyTensorStorage, ReplayBuffer
-    from torchrl.data.replay_buffers.samplers import SamplerWithoutReplacement
-    from torchrl.envs.utils import ExplorationType, set_exploration_type
     from torchrl.modules import IndependentNormal, ProbabilisticActor, ValueOperator
     from torchrl.objectives import ClipPPOLoss, ValueEstimators
-    from tqdm import tqdm
-
-    from swarm.rl.torchrl_env import SwarmTorchRLEnv
-    from swarm.robot import RobotParams
-    from swarm.train import ppo
-
-    overrides = {"out": args.out, "progress": False, "tensorboard": False}
-    if args.seed is not None:
-        overrides["seed"] = args.seed
-    config = load_config(args.config, overrides)
-    B, T = config.num_envs, config.rollout_steps
-    frames_per_update = B * T
-    if args.frames is not None:
-        config = replace(config, stop_after=max(1, args.frames // frames_per_update))
-    if args.budget_s is not None:
-        config = replace(config, time_limit_s=args.budget_s)
-    stop_after = config.stop_after or config.updates
-    out = Path(config.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "config.json").write_text(json.dumps({**asdict(config), "trainer": "torchrl"}, indent=2) + "\n")
-    torch.manual_seed(config.seed)
-    torch.set_num_threads(config.threads)
-    robot = RobotParams(v_max_mps=config.v_max_mps)
-
-    gnn = ppo.load_gnn(config, robot)
-    hops, scale_m = gnn.spec.hops, gnn.feature_scale_m
-    actor = ppo.Actor(gnn, robot, config.init_std, config.learn_std, "velocity")
-    critic = ppo.Critic(hops, config.critic_hidden, scale_m)
-    env = SwarmTorchRLEnv(config, hops, scale_m)
-    n_max = env.n_max
 
     policy = ProbabilisticActor(
         TensorDictModule(
@@ -160,6 +120,62 @@ def train(args: argparse.Namespace) -> Path:
     # one team advantage per swarm, normalized over the minibatch's robots (not per robot slot)
     warnings.filterwarnings("ignore", message="You requested advantage normalization")
     loss.make_value_estimator(ValueEstimators.GAE, gamma=config.gamma, lmbda=config.gae_lambda)
+    return policy, loss
+
+
+def team_to_agents(data) -> None:
+    """The team reward, done and terminated for every robot slot (TorchRL's multi-agent layout)."""
+    shape = (*data.get(("next", AGENTS, "mask")).shape, 1)
+    for key in ("reward", "done", "terminated"):
+        data.set(("next", AGENTS, key), data.get(("next", key)).unsqueeze(-2).expand(shape))
+
+
+def load_config(path: str | None, overrides: dict):
+    from swarm.train import ppo
+
+    data = yaml.safe_load(Path(path).read_text()) or {} if path else {}
+    data.update(overrides)
+    return ppo.make_config("default", data)
+
+
+def train(args: argparse.Namespace) -> Path:
+    """TorchRL MAPPO on ``swarm.rl.torchrl_env``; returns the exported policy file."""
+    from torchrl.collectors import Collector
+    from torchrl.data import LazyTensorStorage, ReplayBuffer
+    from torchrl.data.replay_buffers.samplers import SamplerWithoutReplacement
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+    from tqdm import tqdm
+
+    from swarm.rl.torchrl_env import SwarmTorchRLEnv
+    from swarm.robot import RobotParams
+    from swarm.train import ppo
+
+    overrides = {"out": args.out, "progress": False, "tensorboard": False}
+    if args.seed is not None:
+        overrides["seed"] = args.seed
+    config = load_config(args.config, overrides)
+    B, T = config.num_envs, config.rollout_steps
+    frames_per_update = B * T
+    if args.frames is not None:
+        config = replace(config, stop_after=max(1, args.frames // frames_per_update))
+    if args.budget_s is not None:
+        config = replace(config, time_limit_s=args.budget_s)
+    stop_after = config.stop_after or config.updates
+    out = Path(config.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "config.json").write_text(json.dumps({**asdict(config), "trainer": "torchrl"}, indent=2) + "\n")
+    torch.manual_seed(config.seed)
+    torch.set_num_threads(config.threads)
+    robot = RobotParams(v_max_mps=config.v_max_mps)
+
+    gnn = ppo.load_gnn(config, robot)
+    hops, scale_m = gnn.spec.hops, gnn.feature_scale_m
+    actor = ppo.Actor(gnn, robot, config.init_std, config.learn_std, "velocity")
+    critic = ppo.Critic(hops, config.critic_hidden, scale_m)
+    env = SwarmTorchRLEnv(config, hops, scale_m)
+    n_max = env.n_max
+
+    policy, loss = build_mappo(config, actor, critic, n_max)
 
     actor_params = [p for p in actor.parameters() if p.requires_grad]
     optimizer = torch.optim.Adam(
@@ -220,10 +236,7 @@ def train(args: argparse.Namespace) -> Path:
                 times.extend((episode_ticks[ended] * config.control_period_s).tolist())
                 episode_return[ended] = 0.0
                 episode_ticks[ended] = 0
-        # the team reward, done and terminated for every robot slot (TorchRL's multi-agent layout)
-        shape = (*data.get(("next", AGENTS, "mask")).shape, 1)
-        for key in ("reward", "done", "terminated"):
-            data.set(("next", AGENTS, key), data.get(("next", key)).unsqueeze(-2).expand(shape))
+        team_to_agents(data)
         with torch.no_grad():
             loss.value_estimator(data)
         buffer.extend(data.reshape(-1))

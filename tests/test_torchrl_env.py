@@ -111,6 +111,74 @@ def test_shaped_return_is_minus_time_plus_the_start_potential():
     assert checked >= 6, f"only {checked} episodes ended"
 
 
+def test_torchrl_gae_and_loss_equal_the_loop_equations():
+    """On one collected batch, TorchRL's GAE equals the loop's recursion (no truncation in the batch)
+    and ClipPPOLoss's actor gradient equals the loop's clipped surrogate over the robots that exist
+    (per robot ratio, team advantage normalized over the minibatch; up to n vs n - 1 in its std)."""
+    sys.path.insert(0, str(ROOT / "bench"))
+    from ppo_torchrl import build_mappo, team_to_agents
+
+    torch.manual_seed(0)
+    env = make_env(num_envs=4, sizes=(4, 6), init_std=0.1)
+    config, robot = env.config, env.robot
+    actor = ppo.Actor(ppo.load_gnn(config, robot), robot, config.init_std, True, "velocity")
+    critic = ppo.Critic(8, 16, env.scale_m)
+    policy, loss = build_mappo(config, actor, critic, env.n_max)
+    B, T = 4, 200
+    collector = Collector(
+        env, policy, frames_per_batch=B * T, total_frames=B * T, auto_register_policy_transforms=False
+    )
+    data = next(iter(collector))
+    collector.shutdown()
+    assert not data.get(("next", "truncated")).any()
+    assert data.get(("next", "terminated")).sum() >= 2, "too few episodes ended to test the done handling"
+    team_to_agents(data)
+    with torch.no_grad():
+        loss.value_estimator(data)
+        value = critic(
+            data.get(("agents", "critic_robots")), data.get(("agents", "mask")), data["critic_summary"]
+        )
+        last_value = critic(
+            data.get(("next", "agents", "critic_robots"))[:, -1],
+            data.get(("next", "agents", "mask"))[:, -1],
+            data["next", "critic_summary"][:, -1],
+        )
+    # the loop's GAE: delta_t = r_t + gamma V(s_t+1) (1 - done_t) - V(s_t),
+    # A_t = delta_t + gamma lambda (1 - done_t) A_t+1
+    reward, done = data["next", "reward"][..., 0], data["next", "done"][..., 0].float()
+    advantage, running = torch.zeros(B, T), torch.zeros(B)
+    for t in reversed(range(T)):
+        following = last_value if t == T - 1 else value[:, t + 1]
+        alive = 1.0 - done[:, t]
+        delta = reward[:, t] + config.gamma * following * alive - value[:, t]
+        running = delta + config.gamma * config.gae_lambda * alive * running
+        advantage[:, t] = running
+    torchrl_advantage = data["advantage"]
+    assert torch.allclose(
+        torchrl_advantage, advantage[..., None, None].expand_as(torchrl_advantage), atol=1e-5
+    )
+    # the actor gradient of one minibatch (the whole batch)
+    flat = data.reshape(-1)
+    actor.zero_grad()
+    loss(flat)["loss_objective"].backward()
+    torchrl_grad = [p.grad.clone() for p in actor.parameters()]
+    actor.zero_grad()
+    adv = flat["advantage"][:, 0, 0]
+    adv = (adv - adv.mean()) / (adv.std() + 1e-8)
+    valid = flat.get(("agents", "mask"))
+    logp = (
+        actor.distribution(flat.get(("agents", "observation"))[valid])
+        .log_prob(flat.get(("agents", "action"))[valid])
+        .sum(-1)
+    )
+    ratio = (logp - flat.get(("agents", "sample_log_prob"))[valid]).exp()
+    robot_adv = adv[:, None].expand_as(valid)[valid]
+    clip = config.clip
+    torch.max(-robot_adv * ratio, -robot_adv * ratio.clamp(1 - clip, 1 + clip)).mean().backward()
+    for mine, theirs in zip(torchrl_grad, (p.grad for p in actor.parameters()), strict=True):
+        assert torch.allclose(mine, theirs, rtol=5e-3, atol=1e-7)
+
+
 def test_bench_training_runs_end_to_end(tmp_path):
     """bench/ppo_torchrl.py train: TorchRL's collector, GAE and ClipPPOLoss for two updates."""
     config = tmp_path / "tiny.yaml"
