@@ -17,11 +17,12 @@ Writes ``log.csv``, ``eval.csv`` (the loop's deterministic evaluation, ``swarm.t
 ``compare``: both runs' ``policy.npz`` (and the BC model they started from, and local consensus with
 its gain tuned per graph) from the first ``--starts`` starts of ``swarm sweep`` per graph at N = 20,
 as ``bench/eval_ppo.py`` evaluates (kinematic engine, v_max 0.5 m/s, 0.05 s, max_pairwise <= 0.2 m
-held 5 s); writes ``comparison.md``, ``.json`` and ``learning_curves.png`` into ``--out``.
+held 5 s); writes ``comparison.md``, ``.json`` and ``learning_curves.png`` into ``--out`` (default
+``runs/bench/``; ``--update-results``: ``docs/results/rl/ppo/torchrl/``).
 
     nice -n 10 swarm train --algo ppo --config docs/results/rl/ppo/torchrl/ours.yaml --out runs/ppo-ours
     nice -n 10 python bench/ppo_torchrl.py train --out runs/ppo-torchrl   # the same ours.yaml by default
-    python bench/ppo_torchrl.py compare runs/ppo-ours runs/ppo-torchrl --starts 200
+    python bench/ppo_torchrl.py compare runs/ppo-ours runs/ppo-torchrl --starts 200 --update-results
 """
 
 from __future__ import annotations
@@ -40,6 +41,9 @@ import numpy as np
 import torch
 import yaml
 from torch import nn
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _output import add_output_arguments, output_dir, progress
 
 ROOT = Path(__file__).resolve().parent.parent
 OUT_DIR = ROOT / "docs" / "results" / "rl" / "ppo" / "torchrl"
@@ -330,9 +334,10 @@ def _number(text: str):
         return None if text == "" else text
 
 
-def evaluate_policies(models: dict[str, str], starts: int, count: int, max_duration_s: float) -> list[dict]:
+def evaluate_policies(
+    models: dict[str, str], starts: int, count: int, max_duration_s: float, args: argparse.Namespace
+) -> list[dict]:
     """Every controller from the same ``swarm sweep`` starts as ``bench/eval_ppo.py``, per graph."""
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
     from eval_ppo import tuned_gains
     from tune_consensus_gain import OUT_DIR as TUNED_DIR
     from tune_consensus_gain import sweep_config
@@ -348,7 +353,7 @@ def evaluate_policies(models: dict[str, str], starts: int, count: int, max_durat
     config = sweep_config(starts, 0.2, 0.5, 0.05)
     gains = tuned_gains(TUNED_DIR / "tuned_lc.json")
     rows = []
-    for topology in TOPOLOGIES:
+    for topology in progress(TOPOLOGIES, args, desc="graphs", unit="graph"):
         gain = gains[(topology, count)]
         factories = {name: (lambda n, p=path: load_policy(p, robot, n)) for name, path in models.items()}
         factories["local_consensus_tuned"] = lambda n, g=gain: LocalConsensus(robot, g)
@@ -466,13 +471,16 @@ def compare(args: argparse.Namespace) -> None:
     models = {"ppo_hand_written": str(runs["hand-written"] / "policy.npz")}
     models["ppo_torchrl"] = str(runs["torchrl"] / "policy.npz")
     models["bc_start"] = args.bc
-    rows = evaluate_policies(models, args.starts, 20, args.max_duration)
+    rows = evaluate_policies(models, args.starts, 20, args.max_duration, args)
     summaries = {name: run_summary(run) for name, run in runs.items()}
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = output_dir(args, OUT_DIR)
     plot(runs, out / "learning_curves.png")
     (out / "comparison.json").write_text(
-        json.dumps({"settings": vars(args), "runs": summaries, "evaluation": rows}, indent=2) + "\n"
+        json.dumps(
+            {"settings": {k: str(v) for k, v in vars(args).items()}, "runs": summaries, "evaluation": rows},
+            indent=2,
+        )
+        + "\n"
     )
     lines = [
         "| trainer | updates | swarm ticks | wall (s) | s / update | final training return "
@@ -499,7 +507,9 @@ def compare(args: argparse.Namespace) -> None:
     header = [
         "# PPO side by side: the hand-written loop and TorchRL's MAPPO",
         "",
-        f"Command: `python bench/ppo_torchrl.py compare {args.ours} {args.torchrl} --starts {args.starts}`. "
+        f"Command: `python bench/ppo_torchrl.py compare {args.ours} {args.torchrl} --starts {args.starts}"
+        + (" --update-results" if args.update_results else f" --out {args.out}")
+        + "`. "
         f"Runs: `{args.ours}` (`swarm train --algo ppo`), `{args.torchrl}` (`bench/ppo_torchrl.py train`). "
         f"Evaluation: the first {args.starts} starts of `swarm sweep` per graph (seed 0) at N = 20, "
         "kinematic engine, v_max 0.5 m/s, 0.05 s, max_pairwise <= 0.2 m held 5 s (as `bench/eval_ppo.py`); "
@@ -534,7 +544,7 @@ def main(argv: list[str] | None = None) -> int:
     c.add_argument("--bc", default="models/gnn_default.npz", help="the policy both started from")
     c.add_argument("--starts", type=int, default=200, help="first starts of swarm sweep per graph")
     c.add_argument("--max-duration", type=float, default=3000.0)
-    c.add_argument("--out", default=str(OUT_DIR))
+    add_output_arguments(c, committed=OUT_DIR)
     args = parser.parse_args(argv)
     if args.command == "train":
         if args.config and not Path(args.config).is_file():
