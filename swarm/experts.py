@@ -71,7 +71,8 @@ def drive_toward_velocity(
     targets = np.asarray(targets, dtype=np.float64)
     heading = np.stack([np.cos(poses[..., 2]), np.sin(poses[..., 2])], axis=-1)
     axle = poses[..., :2]
-    backward = ((targets - axle) * heading).sum(axis=-1) < 0.0 if reverse else np.zeros(poses.shape[:-1], bool)
+    behind = ((targets - axle) * heading).sum(axis=-1) < 0.0
+    backward = behind if reverse else np.zeros_like(behind)
     sign = np.where(backward, -1.0, 1.0)[..., None]
     delta = targets - (axle + sign * offset_m * heading)
     distance = np.sqrt((delta * delta).sum(axis=-1))
