@@ -21,7 +21,7 @@ from typing import Protocol
 
 import numpy as np
 
-from swarm import kernels
+from swarm import kernels, mec, mec_kernels
 from swarm.experts import complete_consensus_velocity, neighbour_consensus_velocity
 from swarm.links import Links
 from swarm.robot import RobotParams, controlled_point
@@ -80,3 +80,88 @@ class Centralized:
         self, poses: np.ndarray, points: np.ndarray, inbox: np.ndarray, heard: Links
     ) -> tuple[np.ndarray, np.ndarray]:
         return complete_consensus_velocity(points, self.gain), inbox
+
+
+class MecFlood:
+    """``mec_flood``: max-consensus flood of support points, then full speed toward the centre of
+    their minimum enclosing circle (the strong decentralized baseline).
+
+    Every robot's message holds, for M directions ``d_m = (cos 2 pi m / M, sin 2 pi m / M)``, the
+    initial axle position of largest projection ``<p, d_m>`` it knows of: at tick 0 its own, then
+    each tick the per-direction maximum of what it held and what its heard neighbours sent last
+    tick (``swarm.mec.merge_support``; idempotent, so lost or repeated messages only delay the
+    flood, which is exact after graph-diameter many ticks). Its target is the centre of the
+    minimum enclosing circle of those M points; it drives its controlled point there at full
+    speed, in reverse when the target is behind the axle and ``reverse`` is on
+    (``swarm.experts.drive_toward_velocity``). A robot that knows of no other robot holds still.
+    Its memory is its own message of last tick: ``inbox[:, i]`` (message layout in
+    ``swarm.mec_kernels``).
+    """
+
+    centralized = False
+
+    def __init__(
+        self, robot: RobotParams, control_period_s: float, directions: int = 16, reverse: bool = True
+    ):
+        self.robot = robot
+        self.control_period_s = float(control_period_s)
+        self.directions = int(directions)
+        self.reverse = bool(reverse)
+        self.message_dim = 2 * self.directions + 1
+        dx, dy = mec.flood_directions(self.directions)
+        self._directions = (np.array(dx), np.array(dy))
+
+    def act(
+        self, poses: np.ndarray, points: np.ndarray, inbox: np.ndarray, heard: Links
+    ) -> tuple[np.ndarray, np.ndarray]:
+        batch, count = poses.shape[:2]
+        u_world = np.empty((batch, count, 2))
+        outbox = np.empty((batch, count, self.message_dim))
+        robot = self.robot
+        mec_kernels.mec_flood(
+            np.ascontiguousarray(poses),
+            np.ascontiguousarray(inbox, dtype=np.float64),
+            np.ascontiguousarray(heard.index),
+            *self._directions,
+            robot.offset_m,
+            robot.v_max_mps,
+            self.control_period_s,
+            self.reverse,
+            u_world,
+            outbox,
+        )
+        return u_world, outbox
+
+
+class CentralizedMec:
+    """``centralized_mec``: every robot drives at full speed (reversing if ``reverse``) toward the
+    centre of the exact minimum enclosing circle of the current axle positions
+    (``swarm.experts.centralized_mec_velocity``); one central process in the distributed runtime."""
+
+    message_dim = 0
+    centralized = True
+
+    def __init__(self, robot: RobotParams, control_period_s: float, reverse: bool = True):
+        self.robot = robot
+        self.control_period_s = float(control_period_s)
+        self.reverse = bool(reverse)
+        self._order: np.ndarray | None = None
+
+    def act(
+        self, poses: np.ndarray, points: np.ndarray, inbox: np.ndarray, heard: Links
+    ) -> tuple[np.ndarray, np.ndarray]:
+        count = poses.shape[1]
+        if self._order is None or len(self._order) != count:  # the shuffle of swarm.metrics
+            self._order = np.random.default_rng(0).permutation(count).astype(np.int64)
+        u_world = np.empty((*poses.shape[:2], 2))
+        robot = self.robot
+        mec_kernels.centralized_mec(
+            np.ascontiguousarray(poses),
+            self._order,
+            robot.offset_m,
+            robot.v_max_mps,
+            self.control_period_s,
+            self.reverse,
+            u_world,
+        )
+        return u_world, inbox
