@@ -442,7 +442,13 @@ class RobotAgent:
         params = RobotParams(**config.robot_params)
         try:
             controller = robot_controller(
-                config.controller, params, config.gain, config.policy, config.robot_count
+                config.controller,
+                params,
+                config.gain,
+                config.policy,
+                config.robot_count,
+                config.control_period_s,
+                config.scenario.get("controller"),
             )
         except ValueError as error:  # swarm.policy.PolicyFormatError is a ValueError
             record["exit_reason"] = f"bad controller: {error}"

@@ -17,6 +17,12 @@ from pathlib import Path
 
 import yaml
 
+from swarm.controller_kinds import CONTROLLER_KINDS
+
+SWEEP_CONTROLLER_NAMES = (
+    ["local_consensus", "centralized", "gnn", "mec_flood", "mec_flood_forward", "centralized_mec"]
+)  # swarm.sweep.SWEEP_CONTROLLERS (not imported here: it pulls in numba)
+
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_SCENARIO = "scenarios/thesis/cycle-gnn.yaml"
 EXIT_SUCCESS, EXIT_NOT_MET, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -46,7 +52,15 @@ def _load_with_overrides(path: Path, args: argparse.Namespace):
         data["sim"]["engine"] = args.engine
     if args.duration:
         data["sim"]["duration_s"] = args.duration
-    if args.controller:
+    if args.controller:  # the new kind's defaults for the options only the old kind took
+        from swarm.controller_kinds import controller_kind
+
+        takes = controller_kind(args.controller).options
+        data["controller"] = {
+            key: value
+            for key, value in data["controller"].items()
+            if key in ("model", "gain") or key in takes
+        }
         data["controller"]["kind"] = args.controller
     if args.model:
         try:
@@ -166,6 +180,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         "v_max_mps": args.v_max,
         "model": args.model,
         "workers": args.workers,
+        "packet_loss": args.packet_loss,
     }
     config = config.with_overrides({key: value for key, value in overrides.items() if value is not None})
     out_dir = Path(args.out)
@@ -314,9 +329,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="also write a recording of the run: mcap (ROS 2 messages, for Foxglove), rerun (.rrd)",
     )
     run.add_argument("--engine", choices=["kinematic", "pybullet"], help="override sim.engine")
-    run.add_argument(
-        "--controller", choices=["gnn", "local_consensus", "centralized"], help="override controller.kind"
-    )
+    run.add_argument("--controller", choices=list(CONTROLLER_KINDS), help="override controller.kind")
     run.add_argument("--model", help="override controller.model (exported model file)")
     run.add_argument("--duration", type=float, help="override sim.duration_s (simulated seconds)")
     run.set_defaults(handler=cmd_run)
@@ -342,10 +355,11 @@ def build_parser() -> argparse.ArgumentParser:
         "distributions (absolute and as a ratio to the lower bound of docs/design.md).",
     )
     sweep.add_argument("--config", help="YAML file with any SweepConfig fields")
-    sweep.add_argument("--topologies", nargs="+", help=" ".join(grid_kinds))
+    sweep.add_argument("--topologies", nargs="+", help=" ".join([*grid_kinds, "line_sorted"]))
     sweep.add_argument("--sizes", nargs="+", type=int, help="robot counts N")
     sweep.add_argument("--seeds", type=int, help="random starts per cell")
-    sweep.add_argument("--controllers", nargs="+", help="local_consensus centralized gnn")
+    sweep.add_argument("--controllers", nargs="+", help=" ".join(SWEEP_CONTROLLER_NAMES))
+    sweep.add_argument("--packet-loss", type=float, help="probability that a message is lost (default 0)")
     sweep.add_argument("--model", help="policy file of controller gnn")
     sweep.add_argument("--max-duration", type=float, help="simulated seconds before a start counts as failed")
     sweep.add_argument("--gain", type=float, help="consensus gain K (1/s)")

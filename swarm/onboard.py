@@ -14,14 +14,14 @@ wheel speeds by :func:`swarm.robot.point_velocity_to_wheels`.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any, Protocol
 
 import numpy as np
 
+from swarm import mec
+from swarm.controller_kinds import ControllerArgs, onboard_controller
 from swarm.robot import RobotParams
-
-CONTROLLER_KINDS = ("local_consensus", "gnn")
 
 
 class OnboardController(Protocol):
@@ -102,26 +102,97 @@ class _PolicyAdapter:
         return np.asarray(u_world, dtype=np.float64), np.asarray(message, dtype=np.float64)
 
 
+class OnboardMecFlood:
+    """``mec_flood`` on board one robot, in plain floats: the same functions (``swarm.mec``) the batched
+    :class:`swarm.controllers.MecFlood` compiles, so it computes what that computes for this robot.
+
+    Its memory is its own last message (the support points it knows of). A new instance (a robot
+    agent started, or restarted by ``restart_agent``) remembers nothing: at its first tick it starts
+    afresh from its CURRENT axle position, and its neighbours, who still hold what it flooded
+    before, send the rest back within graph-diameter ticks.
+    """
+
+    def __init__(
+        self, robot: RobotParams, control_period_s: float, directions: int = 16, reverse: bool = True
+    ):
+        self.robot = robot
+        self.control_period_s = float(control_period_s)
+        self.directions = int(directions)
+        self.reverse = bool(reverse)
+        self.message_dim = 2 * self.directions + 1
+        self._dx, self._dy = mec.flood_directions(self.directions)
+        self._known: list[float] | None = None
+
+    def act_floats(
+        self,
+        x_m: float,
+        y_m: float,
+        theta_rad: float,
+        neighbour_messages: Sequence[Sequence[float]],
+        weights: Sequence[float] | None = None,
+    ) -> tuple[tuple[float, float], list[float]]:
+        """One tick: merge the heard messages into what it knows, then drive toward the centre of their
+        minimum enclosing circle; ``(u_world, own message)``. Weights are not used (who was heard is)."""
+        count, flag = self.directions, 2 * self.directions
+        if self._known is None:
+            self._known = [x_m, y_m] * count + [1.0]
+        known = self._known
+        for message in neighbour_messages:
+            if len(message) == self.message_dim and message[flag] > 0.5:
+                mec.merge_support(known, message, self._dx, self._dy, count)
+        cx, cy, radius = mec.welzl_circle(known[0:flag:2], known[1:flag:2], count)
+        if radius > 0.0:
+            u_world = mec.drive_toward(
+                x_m,
+                y_m,
+                theta_rad,
+                cx,
+                cy,
+                self.robot.offset_m,
+                self.robot.v_max_mps,
+                self.control_period_s,
+                self.reverse,
+            )
+        else:
+            u_world = (0.0, 0.0)
+        return u_world, list(known)
+
+    def act_one(
+        self, pose: np.ndarray, neighbour_messages: np.ndarray, weights: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        messages = np.asarray(neighbour_messages, dtype=np.float64).reshape(-1, self.message_dim).tolist()
+        x, y, theta = (float(value) for value in pose[:3])
+        u_world, message = self.act_floats(x, y, theta, messages)
+        return np.array(u_world), np.array(message)
+
+
+def onboard_policy(args: ControllerArgs) -> OnboardController:
+    """The ``gnn`` policy file's bytes (``args.policy``) as an onboard controller."""
+    if args.policy is None:
+        raise ValueError("controller 'gnn' needs a policy file (controller.model)")
+    try:
+        from swarm.policy import load_policy
+    except ImportError as error:
+        raise ValueError(f"controller 'gnn' needs swarm.policy, not available here: {error}") from None
+    return _PolicyAdapter(load_policy(args.policy, args.robot, args.robot_count))
+
+
 def robot_controller(
     kind: str,
     robot: RobotParams,
     gain: float = 1.0,
     policy_bytes: bytes | None = None,
     robot_count: int = 0,
+    control_period_s: float = 0.05,
+    options: Mapping[str, Any] | None = None,
 ) -> OnboardController:
-    """The onboard controller of one robot. ``gnn`` loads the policy file's bytes with the scenario's
-    robot parameters (``robot_count`` feeds the thesis's ``N - 1`` normaliser). ``centralized`` is not
-    an onboard controller: it runs as one central process (``python -m robot_agent.central``)."""
-    if kind == "local_consensus":
-        return OnboardLocalConsensus(robot, gain)
-    if kind == "gnn":
-        if policy_bytes is None:
-            raise ValueError("controller 'gnn' needs a policy file (controller.model)")
-        try:
-            from swarm.policy import load_policy
-        except ImportError as error:
-            raise ValueError(f"controller 'gnn' needs swarm.policy, not available here: {error}") from None
-        return _PolicyAdapter(load_policy(policy_bytes, robot, robot_count))
-    if kind == "centralized":
-        raise ValueError("controller 'centralized' runs as one central process, not on board a robot")
-    raise ValueError(f"unknown controller kind {kind!r} (known: {', '.join(CONTROLLER_KINDS)})")
+    """The onboard controller of one robot (``swarm.controller_kinds``). ``gnn`` loads the policy
+    file's bytes with the scenario's robot parameters (``robot_count`` feeds the thesis's ``N - 1``
+    normaliser); ``options`` is the scenario's ``controller`` section (``mec_flood``: directions,
+    reverse). Central kinds (``centralized``, ``centralized_mec``) are not onboard controllers: they
+    run as one central process (``python -m robot_agent.central``)."""
+    spec = {**(options or {}), "gain": gain}
+    args = ControllerArgs.from_spec(
+        spec, robot, control_period_s, robot_count=robot_count, policy=policy_bytes
+    )
+    return onboard_controller(kind, args)

@@ -26,10 +26,9 @@ from pydantic import (
 )
 
 from swarm import graphs, metrics, topologies
+from swarm.controller_kinds import CONTROLLER_KINDS
 from swarm.faults import FAULT_KINDS
 from swarm.robot import RobotParams
-
-ControllerKind = Literal["gnn", "local_consensus", "centralized"]
 
 
 DEFAULT_MODEL_NAME = "gnn_default.npz"  # in <project root>/models, for controller gnn without a model
@@ -130,9 +129,36 @@ class TopologySpec(_Strict):
 
 
 class ControllerSpec(_Strict):
-    kind: ControllerKind = "gnn"
+    """``controller``: a kind of ``swarm.controller_kinds`` and the options that kind takes."""
+
+    kind: str = "gnn"
     model: str | None = None
     gain: float = Field(1.0, gt=0, description="consensus gain K in 1/s (thesis eq. 3.1)")
+    directions: int = Field(16, ge=3, le=256, description="mec_flood: number M of flooded directions")
+    reverse: bool = Field(True, description="mec_flood, centralized_mec: drive backwards to a target behind")
+
+    @field_validator("kind")
+    @classmethod
+    def _known_kind(cls, value: str) -> str:
+        if value not in CONTROLLER_KINDS:
+            raise ValueError(f"unknown controller '{value}' (known: {', '.join(CONTROLLER_KINDS)})")
+        return value
+
+    @model_validator(mode="after")
+    def _options_of_kind(self) -> ControllerSpec:
+        # model and gain predate the registry and stay accepted (and unused) by every kind
+        takes = CONTROLLER_KINDS[self.kind].options
+        for option in ("directions", "reverse"):
+            default = type(self).model_fields[option].default
+            if getattr(self, option) != default and option not in takes:
+                taken = ", ".join(takes) or "no options"
+                raise KeyedError((option,), f"not an option of controller '{self.kind}' (it takes: {taken})")
+        return self
+
+    @property
+    def central(self) -> bool:
+        """Runs as one central process in the distributed runtime (it needs every robot's pose)."""
+        return CONTROLLER_KINDS[self.kind].central
 
 
 class SimSpec(_Strict):
@@ -327,9 +353,10 @@ class Scenario(_Strict):
                 f" but robots.count is {count}"
             )
         self._check_faults()
-        if self.sim.acl and self.controller.kind == "centralized":
+        if self.sim.acl and self.controller.central:
             raise KeyedError(
-                ("sim", "acl"), "the centralized controller needs every pose; access control is per robot"
+                ("sim", "acl"),
+                f"controller '{self.controller.kind}' needs every pose; access control is per robot",
             )
         if self.sim.acl and self.topology.proximity:
             raise KeyedError(("sim", "acl"), "access control needs a fixed graph, not a disk topology")

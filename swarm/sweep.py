@@ -20,13 +20,32 @@ from pathlib import Path
 import numpy as np
 
 from swarm import graphs, kernels, metrics, topologies
-from swarm.controllers import BatchedController, Centralized, LocalConsensus
+from swarm.controller_kinds import ControllerArgs, batched_controller, controller_kind
+from swarm.controllers import BatchedController
+from swarm.faults import LinkFaults
 from swarm.initial_poses import box_for, random_poses
 from swarm.kinematic import KinematicSim
 from swarm.robot import RobotParams
 from swarm.scenario import ScenarioError
 
-CONTROLLERS = ("local_consensus", "centralized", "gnn")
+SORTED_LINE = "line_sorted"
+"""A sweep-only topology: the starts of ``line`` with each start's robots renumbered by increasing x,
+so that graph hops follow space (the two ends of the line are the two extreme robots)."""
+
+SWEEP_CONTROLLERS: dict[str, tuple[str, dict]] = {
+    "local_consensus": ("local_consensus", {}),
+    "centralized": ("centralized", {}),
+    "gnn": ("gnn", {}),
+    "mec_flood": ("mec_flood", {}),
+    "mec_flood_forward": ("mec_flood", {"reverse": False}),
+    "centralized_mec": ("centralized_mec", {}),
+}
+"""Sweep controller names -> (``swarm.controller_kinds`` kind, options): ``mec_flood_forward`` is
+``mec_flood`` without reversing."""
+CONTROLLERS = tuple(SWEEP_CONTROLLERS)
+LOSS_CHUNK_STARTS = 50
+"""Under packet loss, a cell's starts run in chunks of this many, chunk c with loss seed c: the
+loss draws (``swarm.faults``) are the same in every environment of one simulator."""
 
 
 @dataclass(frozen=True)
@@ -48,6 +67,7 @@ class SweepConfig:
     model: str | None = None  # policy file of controller "gnn"
     first_starts: int | None = None  # run only the first ones of the `seeds` starts (None: all)
     workers: int = 1  # processes a cell's starts are split over (results do not depend on it)
+    packet_loss: float = 0.0  # probability that any one message is lost (swarm.faults packet_loss)
 
     @classmethod
     def from_mapping(cls, data: dict, source: str = "<config>") -> SweepConfig:
@@ -64,7 +84,7 @@ class SweepConfig:
 
     def check(self, source: str) -> None:
         for topology in self.topologies:
-            if topology not in topologies.kinds(grid=True):
+            if topology not in (*topologies.kinds(grid=True), SORTED_LINE):
                 raise ScenarioError(f"{source}: topologies: unknown topology '{topology}'")
         for controller in self.controllers:
             if controller not in CONTROLLERS:
@@ -76,6 +96,8 @@ class SweepConfig:
                 raise ScenarioError(f"{source}: model: no such policy file {self.model}")
         if self.first_starts is not None and not 0 < self.first_starts <= self.seeds:
             raise ScenarioError(f"{source}: first_starts: must be in 1..seeds")
+        if not 0.0 <= self.packet_loss < 1.0:
+            raise ScenarioError(f"{source}: packet_loss: must be in [0, 1)")
         if self.workers < 1:
             raise ScenarioError(f"{source}: workers: must be at least 1")
         if any(size < 2 for size in self.sizes):
@@ -121,15 +143,17 @@ def connecting_radius(positions: np.ndarray) -> float:
 
 
 def make_controller(
-    kind: str, robot: RobotParams, gain: float, model: str | None = None, robot_count: int = 0
+    name: str,
+    robot: RobotParams,
+    gain: float,
+    model: str | None = None,
+    robot_count: int = 0,
+    control_period_s: float = 0.05,
 ) -> BatchedController:
-    if kind == "gnn":
-        from swarm.policy import load_policy
-
-        if model is None:
-            raise ValueError("controller 'gnn' needs a model file")
-        return load_policy(model, robot, robot_count)
-    return LocalConsensus(robot, gain) if kind == "local_consensus" else Centralized(robot, gain)
+    """The batched controller of sweep controller ``name`` (``SWEEP_CONTROLLERS``)."""
+    kind, options = SWEEP_CONTROLLERS[name]
+    args = ControllerArgs(robot, control_period_s, gain, robot_count=robot_count, policy=model, **options)
+    return batched_controller(kind, args)
 
 
 def file_hash(path: str | Path) -> str:
@@ -206,10 +230,15 @@ def cell_starts(
 ) -> tuple[np.ndarray, np.ndarray | None, float | None]:
     """The starts of a cell: poses ``(B, N, 3)``, adjacency ``(B, N, N)`` (None on disk graphs) and
     the disk radius (None on fixed graphs); the first ``first_starts`` when that is set."""
+    sorted_line = topology == SORTED_LINE
+    topology = "line" if sorted_line else topology
     cell_seed = np.random.SeedSequence([config.seed, topologies.grid_index(topology), count])
     rng = np.random.default_rng(cell_seed)
     box = box_for(count)
     poses = random_poses(rng, config.seeds, count, box, box, config.min_separation_m)
+    if sorted_line:
+        order = np.argsort(poses[..., 0], axis=1, kind="stable")
+        poses = np.take_along_axis(poses, order[..., None], axis=1)
     adjacency = cell_graphs(config, topology, count, rng)
     disk_radius = None
     if adjacency is None:  # the radius connecting all `seeds` starts, even when running fewer
@@ -231,10 +260,34 @@ def _converge_starts(
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """Convergence times of some starts of a cell (and, on disk graphs, which ones disconnected)."""
     robot = RobotParams(v_max_mps=config.v_max_mps)
+    if config.packet_loss > 0 and not controller_kind(SWEEP_CONTROLLERS[controller][0]).central:
+        chunks = np.array_split(np.arange(len(poses)), -(-len(poses) // LOSS_CHUNK_STARTS))
+        times = np.full(len(poses), np.nan)
+        disconnected = np.zeros(len(poses), dtype=bool) if adjacency is None else None
+        for seed, chunk in enumerate(chunks):
+            faults = LinkFaults(
+                [{"kind": "packet_loss", "p": config.packet_loss}], config.control_period_s, seed
+            )
+            part = None if disconnected is None else np.zeros(len(chunk), dtype=bool)
+            sim = KinematicSim(
+                robot,
+                make_controller(controller, robot, config.gain, config.model, count, config.control_period_s),
+                config.control_period_s,
+                poses[chunk],
+                adjacency=None if adjacency is None else adjacency[chunk],
+                disk_radius_m=disk_radius,
+                link_faults=faults,
+            )
+            times[chunk] = converge_batch(
+                sim, config.threshold_m, config.max_duration_s, config.hold_s, on_progress, part
+            )
+            if part is not None:
+                disconnected[chunk] = part
+        return times, disconnected
     disconnected = np.zeros(len(poses), dtype=bool) if adjacency is None else None
     sim = KinematicSim(
         robot,
-        make_controller(controller, robot, config.gain, config.model, count),
+        make_controller(controller, robot, config.gain, config.model, count, config.control_period_s),
         config.control_period_s,
         poses,
         adjacency=adjacency,
@@ -291,7 +344,8 @@ def run_cell(config: SweepConfig, topology: str, count: int, controller: str, on
     """One (topology, N, controller) cell over ``config.seeds`` random starts."""
     poses, adjacency, disk_radius = cell_starts(config, topology, count)
     starts = len(poses)
-    converge = _converge_in_workers if config.workers > 1 and starts > 1 else _converge_starts
+    workers = config.workers > 1 and starts > 1 and config.packet_loss == 0
+    converge = _converge_in_workers if workers else _converge_starts
     times, disconnected = converge(config, count, controller, poses, adjacency, disk_radius, on_progress)
     lower = np.array(
         [metrics.lower_bound_s(start[:, :2], config.threshold_m, config.v_max_mps) for start in poses]
@@ -301,7 +355,7 @@ def run_cell(config: SweepConfig, topology: str, count: int, controller: str, on
         lambda2 = np.array(
             [graphs.algebraic_connectivity(graphs.disk(start[:, :2], disk_radius)) for start in poses]
         )
-    elif topologies.get(topology).random:
+    elif topology != SORTED_LINE and topologies.get(topology).random:
         lambda2 = np.array([graphs.algebraic_connectivity(matrix) for matrix in adjacency])
     else:
         lambda2 = np.full(starts, graphs.algebraic_connectivity(adjacency[0]))
@@ -314,6 +368,7 @@ def run_cell(config: SweepConfig, topology: str, count: int, controller: str, on
         "lambda2": lambda2,
         "disk_radius_m": disk_radius,
         "disconnected": disconnected,
+        "packet_loss": config.packet_loss,
     }
 
 
@@ -330,6 +385,7 @@ def summarize_cell(cell: dict) -> dict:
         "topology": cell["topology"],
         "robots": cell["robots"],
         "controller": cell["controller"],
+        "packet_loss": cell.get("packet_loss", 0.0),
         "starts": len(times),
         "success_rate": float(converged.mean()),
         "median_time_s": stat(times, np.median),
@@ -338,6 +394,7 @@ def summarize_cell(cell: dict) -> dict:
         "max_time_s": stat(times, np.max),
         "median_lower_bound_s": float(np.median(lower)),
         "median_ratio_to_lower_bound": stat(ratio, np.median),
+        "p95_ratio_to_lower_bound": stat(ratio, lambda v: np.percentile(v, 95)),
         "min_ratio_to_lower_bound": stat(ratio, np.min),
         "median_lambda2": float(np.median(cell["lambda2"])),
         "median_time_x_lambda2": stat(times * cell["lambda2"], np.median),
@@ -348,10 +405,12 @@ def summarize_cell(cell: dict) -> dict:
 def cell_settings(config: SweepConfig, controller: str) -> dict:
     """What a cached cell must have been run with: every setting but the grid; the model file's hash
     instead of its path (gnn only); ``first_starts`` only when set (older caches lack both)."""
-    grid = ("topologies", "sizes", "controllers", "model", "first_starts", "workers")
+    grid = ("topologies", "sizes", "controllers", "model", "first_starts", "workers", "packet_loss")
     settings = {key: value for key, value in asdict(config).items() if key not in grid}
     if config.first_starts is not None:
         settings["first_starts"] = config.first_starts
+    if config.packet_loss > 0:  # older caches are lossless and lack it
+        settings["packet_loss"] = config.packet_loss
     if controller == "gnn":
         assert config.model is not None  # SweepConfig.check: gnn needs a model
         settings["model_sha256"] = file_hash(config.model)
@@ -361,7 +420,8 @@ def cell_settings(config: SweepConfig, controller: str) -> dict:
 def cell_path(cells_dir: Path, config: SweepConfig, topology: str, count: int, controller: str) -> Path:
     suffix = f"-{cell_settings(config, controller)['model_sha256'][:12]}" if controller == "gnn" else ""
     limit = f"_first{config.first_starts}" if config.first_starts is not None else ""
-    return cells_dir / f"{topology}_{count}_{controller}{suffix}{limit}.npz"
+    loss = f"_loss{config.packet_loss:g}" if config.packet_loss > 0 else ""
+    return cells_dir / f"{topology}_{count}_{controller}{suffix}{loss}{limit}.npz"
 
 
 def find_cached_cell(
@@ -390,6 +450,7 @@ def find_cached_cell(
                     "lambda2": saved["lambda2"],
                     "disk_radius_m": None if np.isnan(radius) else radius,
                     "disconnected": saved["disconnected"] if "disconnected" in saved.files else None,
+                    "packet_loss": config.packet_loss,
                 }
     return None
 
