@@ -1,7 +1,8 @@
-"""``python -m robot_agent.central``: the centralized expert as ONE process (label: centralized).
+"""``python -m robot_agent.central``: a centralized controller as ONE process (label: centralized).
 
-Thesis eq. 3.1 on the complete graph needs every robot's pose at tick k, so it cannot run on board
-the robots: this single process subscribes to every pose (``swarm/<run>/robot/*/pose``, the one
+``centralized`` (thesis eq. 3.1 on the complete graph) and ``centralized_mec`` (full speed toward
+the minimum enclosing circle's centre of the current positions, ``swarm.experts``) need every
+robot's pose at tick k, so they cannot run on board the robots: this single process subscribes to every pose (``swarm/<run>/robot/*/pose``, the one
 wildcard over robots in the runtime, and the reason the controller is not decentralized),
 waits for all poses of tick k, and publishes every robot's wheel command for tick k. It holds the
 liveliness token of every robot's controller (``alive/agent/<i>``), so the sim waits for it as
@@ -24,7 +25,7 @@ import numpy as np
 import zenoh
 
 from swarm import wire
-from swarm.experts import complete_consensus_velocity
+from swarm.experts import centralized_mec_velocity, complete_consensus_velocity
 from swarm.procs import die_with_parent
 from swarm.robot import RobotParams, controlled_point, point_velocity_to_wheels
 from swarm.usage import EXIT_BAD_INPUT, OneLineArgumentParser, configure_logging, one_line
@@ -129,6 +130,12 @@ class CentralController:
             record["exit_reason"] = "no config from the sim"
             return 1
         count, gain = config.robot_count, config.gain
+        if config.controller not in ("centralized", "centralized_mec"):
+            record["exit_reason"] = f"controller {config.controller!r} is not a central controller"
+            return 1
+        mec = config.controller == "centralized_mec"
+        reverse = bool((config.scenario.get("controller") or {}).get("reverse", True))
+        record["controller"] = config.controller
         params = RobotParams(**config.robot_params)
         entities.append(session.declare_subscriber(keys.all_poses, guard(self._on_pose)))
         record["subscriptions"].append(keys.all_poses)
@@ -160,7 +167,12 @@ class CentralController:
                 robots = sorted(got)
                 record["incomplete_ticks"] += len(robots) < count
                 poses = np.array([got[i].array() for i in robots])
-                u_world = complete_consensus_velocity(controlled_point(poses, params.offset_m), gain)
+                if mec:  # centralized_mec: full speed toward the MEC centre of the current positions
+                    u_world = centralized_mec_velocity(
+                        poses, params.offset_m, params.v_max_mps, config.control_period_s, reverse
+                    )
+                else:
+                    u_world = complete_consensus_velocity(controlled_point(poses, params.offset_m), gain)
                 wheels = point_velocity_to_wheels(u_world, poses[:, 2], params)
                 for row, i in enumerate(robots):
                     publishers[i].put(wire.encode_command(tick, wheels[row]))

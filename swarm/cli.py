@@ -19,9 +19,14 @@ import yaml
 
 from swarm.controller_kinds import CONTROLLER_KINDS
 
-SWEEP_CONTROLLER_NAMES = (
-    ["local_consensus", "centralized", "gnn", "mec_flood", "mec_flood_forward", "centralized_mec"]
-)  # swarm.sweep.SWEEP_CONTROLLERS (not imported here: it pulls in numba)
+SWEEP_CONTROLLER_NAMES = [
+    "local_consensus",
+    "centralized",
+    "gnn",
+    "mec_flood",
+    "mec_flood_forward",
+    "centralized_mec",
+]  # swarm.sweep.SWEEP_CONTROLLERS (not imported here: it pulls in numba)
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_SCENARIO = "scenarios/thesis/cycle-gnn.yaml"

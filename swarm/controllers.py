@@ -158,6 +158,8 @@ class CentralizedMec:
         mec_kernels.centralized_mec(
             np.ascontiguousarray(poses),
             self._order,
+            np.empty(poses.shape[:2]),
+            np.empty(poses.shape[:2]),
             robot.offset_m,
             robot.v_max_mps,
             self.control_period_s,

@@ -278,9 +278,9 @@ def _check_faults(scenario: Scenario) -> None:
         if fault.kind in PROCESS_FAULTS and fault.kind != "kill_server":
             if fault.robot is None:
                 raise ScenarioError(f"{where}: needs 'robot'")
-            if scenario.controller.kind == "centralized":
+            if scenario.controller.central:
                 raise ScenarioError(
-                    f"{where}: controller.kind 'centralized' runs one process for every robot;"
+                    f"{where}: controller.kind '{scenario.controller.kind}' runs one process for every robot;"
                     " agent faults need one process per robot"
                 )
         if fault.kind == "hang_agent" and fault.duration_s is None:
@@ -347,7 +347,7 @@ def _run_distributed(
         users, per_robot = write_credentials(out_dir / "credentials", count)
         server_cmd += ["--users", str(users)]
         common += ["--credentials", per_robot]
-    if scenario.controller.kind == "centralized":
+    if scenario.controller.central:
         controller_name, controller_cmd = "central", [python, "-m", "robot_agent.central", *common]
     else:
         controller_name = "agents"

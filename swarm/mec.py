@@ -9,11 +9,20 @@ which is what lets numba compile it unchanged.
   iterative form of ``swarm.metrics.minimum_enclosing_circle``, in the order given).
 - :func:`merge_support`: the flood's max-consensus over per-direction support points.
 - :func:`drive_toward`: full speed toward a target, forward or in reverse (``swarm.experts``).
+- :func:`flood_step`, :func:`centralized_mec_step`: the batched engine's loops over B x N robots.
+
+The loops live here too, next to what they call, so that numba's on-disk cache (keyed on the source
+file of each compiled function) is invalidated by any edit of this file.
+
+Flood message layout, ``D = 2 M + 1``: the support points ``(x_m, y_m)`` for ``m < M``, then a
+flag that is 1 once the robot has a message at all (a zero inbox, at tick 0, has flag 0).
 """
 
 from __future__ import annotations
 
 import math
+
+prange = range  # numba.prange in the compiled loops (swarm.mec_kernels)
 
 
 def welzl_circle(xs, ys, count: int) -> tuple[float, float, float]:
@@ -118,3 +127,98 @@ def drive_toward(
         along = ux * c + uy * s
         ux, uy = 2.0 * along * c - ux, 2.0 * along * s - uy
     return ux, uy
+
+
+def flood_step(
+    poses,
+    inbox,
+    neighbour_index,
+    directions_x,
+    directions_y,
+    offset_m: float,
+    v_max_mps: float,
+    control_period_s: float,
+    reverse: bool,
+    u_world,
+    outbox,
+) -> None:
+    """One tick of ``mec_flood`` for every robot (``swarm.controllers.MecFlood``); compiled by
+    ``swarm.mec_kernels``, runs as it is (slowly) on numpy arrays too.
+
+    poses ``(B, N, 3)``; inbox ``(B, >=N, D)``: column i is robot i's own message of last tick (its
+    memory), columns named by ``neighbour_index`` ``(B, N, K)`` (-1 ends a list) what it heard.
+    Writes u_world ``(B, N, 2)`` and outbox ``(B, N, D)``.
+    """
+    batch, count, slots = neighbour_index.shape
+    directions = directions_x.shape[0]
+    flag = 2 * directions
+    for row in prange(batch * count):
+        env = row // count
+        i = row % count
+        known = outbox[env, i]
+        if inbox[env, i, flag] > 0.5:
+            known[:] = inbox[env, i]
+        else:  # nothing remembered yet: its own (initial) axle position in every direction
+            for m in range(directions):
+                known[2 * m] = poses[env, i, 0]
+                known[2 * m + 1] = poses[env, i, 1]
+            known[flag] = 1.0
+        for k in range(slots):
+            j = neighbour_index[env, i, k]
+            if j < 0:
+                break
+            if inbox[env, j, flag] > 0.5:
+                merge_support(known, inbox[env, j], directions_x, directions_y, directions)
+        cx, cy, radius = welzl_circle(known[0:flag:2], known[1:flag:2], directions)
+        if radius > 0.0:
+            ux, uy = drive_toward(
+                poses[env, i, 0],
+                poses[env, i, 1],
+                poses[env, i, 2],
+                cx,
+                cy,
+                offset_m,
+                v_max_mps,
+                control_period_s,
+                reverse,
+            )
+        else:  # it knows of no other robot yet: hold still
+            ux, uy = 0.0, 0.0
+        u_world[env, i, 0] = ux
+        u_world[env, i, 1] = uy
+
+
+def centralized_mec_step(
+    poses,
+    order,
+    xs,
+    ys,
+    offset_m: float,
+    v_max_mps: float,
+    control_period_s: float,
+    reverse: bool,
+    u_world,
+) -> None:
+    """``centralized_mec`` for every environment: the exact MEC of the current axle positions (taken
+    in the fixed shuffled ``order`` ``(N,)``; ``xs``, ``ys`` ``(B, N)`` scratch), then every robot
+    drives toward its centre."""
+    batch, count = poses.shape[0], poses.shape[1]
+    for env in prange(batch):
+        for k in range(count):
+            xs[env, k] = poses[env, order[k], 0]
+            ys[env, k] = poses[env, order[k], 1]
+        cx, cy, _ = welzl_circle(xs[env], ys[env], count)
+        for i in range(count):
+            ux, uy = drive_toward(
+                poses[env, i, 0],
+                poses[env, i, 1],
+                poses[env, i, 2],
+                cx,
+                cy,
+                offset_m,
+                v_max_mps,
+                control_period_s,
+                reverse,
+            )
+            u_world[env, i, 0] = ux
+            u_world[env, i, 1] = uy

@@ -11,7 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from swarm.controllers import BatchedController, Centralized, LocalConsensus
+from swarm.controller_kinds import ControllerArgs, batched_controller
+from swarm.controllers import BatchedController
 from swarm.faults import PROCESS_FAULTS, LinkFaults, add_fault_results, message_max_age_ticks
 from swarm.kinematic import KinematicSim
 from swarm.report import write_pictures
@@ -28,22 +29,26 @@ log = logging.getLogger(__name__)
 
 
 def build_controller(scenario: Scenario, scenario_path: Path | None = None) -> BatchedController:
-    """The batched controller named by ``scenario.controller``."""
+    """The batched controller named by ``scenario.controller`` (``swarm.controller_kinds``)."""
     spec = scenario.controller
-    if spec.kind == "local_consensus":
-        return LocalConsensus(scenario.robot, spec.gain)
-    if spec.kind == "centralized":
-        return Centralized(scenario.robot, spec.gain)
+    policy = None
     if spec.kind == "gnn":
-        from swarm.policy import PolicyFormatError, load_policy
         from swarm.scenario import resolve_model_path
 
-        path = resolve_model_path(spec.model, scenario_path)
-        try:
-            return load_policy(path, scenario.robot, scenario.robots.count)
-        except PolicyFormatError as error:
-            raise ScenarioError(f"controller.model: {path}: {error}") from None
-    raise ScenarioError(f"controller.kind: '{spec.kind}' is not available in this version")
+        policy = resolve_model_path(spec.model, scenario_path)
+    args = ControllerArgs.from_spec(
+        spec.model_dump(),
+        scenario.robot,
+        scenario.sim.control_period_s,
+        robot_count=scenario.robots.count,
+        policy=policy,
+    )
+    try:
+        return batched_controller(spec.kind, args)
+    except ValueError as error:  # swarm.policy.PolicyFormatError is a ValueError
+        key = "controller.model" if spec.kind == "gnn" else "controller.kind"
+        where = f"{policy}: " if policy is not None else ""
+        raise ScenarioError(f"{key}: {where}{error}") from None
 
 
 def run_kinematic(
