@@ -127,6 +127,8 @@ class MecFlood:
             robot.v_max_mps,
             self.control_period_s,
             self.reverse,
+            np.empty((batch, inbox.shape[1], self.directions)),
+            np.empty((batch, count, self.directions)),
             u_world,
             outbox,
         )

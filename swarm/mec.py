@@ -139,23 +139,37 @@ def flood_step(
     v_max_mps: float,
     control_period_s: float,
     reverse: bool,
+    projections,
+    known_projections,
     u_world,
     outbox,
 ) -> None:
     """One tick of ``mec_flood`` for every robot (``swarm.controllers.MecFlood``); compiled by
     ``swarm.mec_kernels``, runs as it is (slowly) on numpy arrays too.
 
-    poses ``(B, N, 3)``; inbox ``(B, >=N, D)``: column i is robot i's own message of last tick (its
-    memory), columns named by ``neighbour_index`` ``(B, N, K)`` (-1 ends a list) what it heard.
-    Writes u_world ``(B, N, 2)`` and outbox ``(B, N, D)``.
+    poses ``(B, N, 3)``; inbox ``(B, C, D)``, ``C >= N``: column i is robot i's own message of last
+    tick (its memory), columns named by ``neighbour_index`` ``(B, N, K)`` (-1 ends a list) what it
+    heard; projections ``(B, C, M)`` and known_projections ``(B, N, M)`` scratch. Writes u_world
+    ``(B, N, 2)`` and outbox ``(B, N, D)``.
+    The merge is :func:`merge_support`'s, with each message's projections ``<q, d_m>`` computed
+    once per tick instead of once per receiver (same floats, fewer multiplications).
     """
     batch, count, slots = neighbour_index.shape
+    columns = inbox.shape[1]
     directions = directions_x.shape[0]
     flag = 2 * directions
+    for row in prange(batch * columns):
+        env = row // columns
+        j = row % columns
+        for m in range(directions):
+            projections[env, j, m] = (
+                inbox[env, j, 2 * m] * directions_x[m] + inbox[env, j, 2 * m + 1] * directions_y[m]
+            )
     for row in prange(batch * count):
         env = row // count
         i = row % count
         known = outbox[env, i]
+        best = known_projections[env, i]
         if inbox[env, i, flag] > 0.5:
             known[:] = inbox[env, i]
         else:  # nothing remembered yet: its own (initial) axle position in every direction
@@ -163,12 +177,23 @@ def flood_step(
                 known[2 * m] = poses[env, i, 0]
                 known[2 * m + 1] = poses[env, i, 1]
             known[flag] = 1.0
+        for m in range(directions):
+            best[m] = known[2 * m] * directions_x[m] + known[2 * m + 1] * directions_y[m]
         for k in range(slots):
             j = neighbour_index[env, i, k]
             if j < 0:
                 break
-            if inbox[env, j, flag] > 0.5:
-                merge_support(known, inbox[env, j], directions_x, directions_y, directions)
+            if inbox[env, j, flag] <= 0.5:
+                continue
+            for m in range(directions):
+                pq = projections[env, j, m]
+                qx, qy = inbox[env, j, 2 * m], inbox[env, j, 2 * m + 1]
+                kx, ky = known[2 * m], known[2 * m + 1]
+                pk = best[m]
+                if pq > pk or (pq == pk and (qx > kx or (qx == kx and qy > ky))):
+                    known[2 * m] = qx
+                    known[2 * m + 1] = qy
+                    best[m] = pq
         cx, cy, radius = welzl_circle(known[0:flag:2], known[1:flag:2], directions)
         if radius > 0.0:
             ux, uy = drive_toward(
