@@ -229,6 +229,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         curve_sizes=args.curve_sizes or defaults.curve_sizes,
         curve_starts=args.curve_starts or defaults.curve_starts,
         workers=args.workers,
+        packet_losses=args.packet_loss or defaults.packet_losses,
     )
     SweepConfig(
         topologies=config.topologies, sizes=config.sizes, seeds=config.seeds, workers=config.workers
@@ -399,6 +400,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--reuse", nargs="+", help="results directories whose cached cells to read (swarm sweep)"
     )
     evaluate.add_argument("--curve-sizes", nargs="+", type=int, help="N of the max_pairwise-over-time plots")
+    evaluate.add_argument(
+        "--packet-loss",
+        nargs="+",
+        type=float,
+        help="message-loss probabilities, each a set of cells (default 0)",
+    )
     evaluate.add_argument("--curve-starts", type=int, help="starts per max_pairwise curve (default 100)")
     evaluate.add_argument("--out", default="runs/evaluate", help="output directory (default: runs/evaluate)")
     evaluate.add_argument(

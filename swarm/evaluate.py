@@ -1,4 +1,4 @@
-"""``swarm evaluate``: a policy file against local consensus and the centralized expert.
+"""``swarm evaluate``: a policy file beside the baselines (``CONTROLLER_ORDER``), as ratio to the bound.
 
 Built on ``swarm.sweep``: the same starts, graphs, stopping rule and per-cell cache, so the
 local-consensus and centralized cells are shared with ``swarm sweep`` run with the same settings
@@ -35,8 +35,25 @@ from swarm.sweep import (
     summarize_cell,
 )
 
-CONTROLLER_ORDER = ("centralized", "gnn", "local_consensus")
-COLOURS = {"centralized": "tab:green", "gnn": "tab:blue", "local_consensus": "tab:red"}
+CONTROLLER_ORDER = (
+    "gnn",
+    "mec_flood",
+    "mec_flood_forward",
+    "centralized_mec",
+    "centralized",
+    "local_consensus",
+)
+"""The model beside the strongest baselines: ``mec_flood`` with and without reversing, the
+time-optimal ``centralized_mec``, the thesis's ``centralized`` expert and local consensus."""
+CENTRAL_CONTROLLERS = ("centralized_mec", "centralized")  # ignore links: not run under packet loss
+COLOURS = {
+    "centralized": "tab:green",
+    "gnn": "tab:blue",
+    "local_consensus": "tab:red",
+    "mec_flood": "tab:purple",
+    "mec_flood_forward": "tab:pink",
+    "centralized_mec": "tab:olive",
+}
 
 
 @dataclass(frozen=True)
@@ -53,9 +70,12 @@ class EvaluateConfig:
     curve_starts: int = 100
     curve_horizon_s: float = 600.0  # longest simulated time of a max_pairwise curve
     workers: int = 1  # processes a cell's starts are split over
+    packet_losses: list[float] = field(default_factory=lambda: [0.0])  # every cell at each of these
 
 
-def sweep_config(config: EvaluateConfig, count: int, topology: str | None = None) -> SweepConfig:
+def sweep_config(
+    config: EvaluateConfig, count: int, topology: str | None = None, packet_loss: float = 0.0
+) -> SweepConfig:
     limit = config.limits.get(f"{topology}:{count}", config.limits.get(count))
     return SweepConfig(
         topologies=config.topologies,
@@ -66,14 +86,20 @@ def sweep_config(config: EvaluateConfig, count: int, topology: str | None = None
         model=config.model,
         first_starts=limit if limit is not None and limit < config.seeds else None,
         workers=config.workers,
+        packet_loss=packet_loss,
     )
 
 
 def evaluation_cell(
-    config: EvaluateConfig, topology: str, count: int, controller: str, on_progress=None
+    config: EvaluateConfig,
+    topology: str,
+    count: int,
+    controller: str,
+    on_progress=None,
+    packet_loss: float = 0.0,
 ) -> dict:
     """A cell from the cache (a full cell cut to ``first_starts`` if that is all there is) or run."""
-    sweep = sweep_config(config, count, topology)
+    sweep = sweep_config(config, count, topology, packet_loss)
     out, reuse = Path(config.out), tuple(Path(d) for d in config.reuse)
     if sweep.first_starts is not None:
         full = find_cached_cell(out, replace(sweep, first_starts=None), topology, count, controller, reuse)
@@ -149,35 +175,51 @@ def plot_curves(config: EvaluateConfig, rows: list[dict], count: int, path: Path
 def evaluate(config: EvaluateConfig, progress: bool = True) -> list[dict]:
     out = Path(config.out)
     out.mkdir(parents=True, exist_ok=True)
-    todo = [(t, n, c) for t in config.topologies for n in config.sizes for c in CONTROLLER_ORDER]
+    todo = [
+        (t, n, c, loss)
+        for loss in config.packet_losses
+        for t in config.topologies
+        for n in config.sizes
+        for c in CONTROLLER_ORDER
+        if not (loss > 0 and c in CENTRAL_CONTROLLERS)
+    ]
     bar = None
     if progress:
         from tqdm import tqdm
 
         bar = tqdm(total=len(todo), unit="cell", desc="evaluate")
     cells: dict[tuple, dict] = {}
-    for topology, count, controller in todo:
+    for topology, count, controller, loss in todo:
         on_progress = None
         if bar is not None:
-            bar.set_description(f"{topology} N={count} {controller}")
+            bar.set_description(f"{topology} N={count} {controller}" + (f" loss {loss:g}" if loss else ""))
 
             def on_progress(time_s: float, done: int, bar=bar) -> None:
                 bar.set_postfix_str(f"t={time_s:.0f}s done={done}")
 
-        cells[topology, count, controller] = evaluation_cell(config, topology, count, controller, on_progress)
+        cells[topology, count, controller, loss] = evaluation_cell(
+            config, topology, count, controller, on_progress, loss
+        )
         if bar is not None:
             bar.update()
     if bar is not None:
         bar.close()
     rows = []
-    for (topology, count, _), cell in cells.items():
+    for (topology, count, _, loss), cell in cells.items():
         row = summarize_cell(cell)
         row["median_ratio_to_local_consensus"] = ratio_to(
-            cell["times_s"], cells[topology, count, "local_consensus"]["times_s"]
+            cell["times_s"], cells[topology, count, "local_consensus", loss]["times_s"]
         )
         rows.append(row)
     write_tables(config, rows)
-    plot_sweep(out, list(cells.values()), rows, sweep_config(config, config.sizes[0]))
+    lossless = [key for key in cells if key[3] == 0]
+    if lossless:
+        plot_sweep(
+            out,
+            [cells[key] for key in lossless],
+            [r for r in rows if r["packet_loss"] == 0],
+            sweep_config(config, config.sizes[0]),
+        )
     for count in config.curve_sizes:
         if count in config.sizes:
             plot_curves(config, rows, count, out / f"max_pairwise_N{count}.png")
@@ -197,8 +239,14 @@ def write_tables(config: EvaluateConfig, rows: list[dict]) -> None:
             return "-"
         return f"{value:.1%}" if percent else f"{value:.2f}" if isinstance(value, float) else str(value)
 
+    def ratio(value: float | None) -> str:
+        return "-" if value is None else f"{value:.3f}"
+
     disk = any(row["disconnected_rate"] is not None for row in rows)
-    header = "| topology | N | controller | starts | success | median t (s) | p90 t (s) | t / LB | t / LC |"
+    header = (
+        "| topology | N | loss | controller | starts | success | median t (s) | p90 t (s) | t / LB "
+        "| p95 t / LB | t / LC |"
+    )
     header += " disconnected |" if disk else ""
     lines = [
         f"Model `{config.model}`; random starts per cell as given; convergence: max_pairwise <= 0.2 m held "
@@ -210,9 +258,10 @@ def write_tables(config: EvaluateConfig, rows: list[dict]) -> None:
     ]
     for row in rows:
         line = (
-            f"| {row['topology']} | {row['robots']} | {row['controller']} | {row['starts']} "
-            f"| {row['success_rate']:.1%} | {fmt(row['median_time_s'])} | {fmt(row['p90_time_s'])} "
-            f"| {fmt(row['median_ratio_to_lower_bound'])} | {fmt(row['median_ratio_to_local_consensus'])} |"
+            f"| {row['topology']} | {row['robots']} | {row['packet_loss']:.0%} | {row['controller']} "
+            f"| {row['starts']} | {row['success_rate']:.1%} | {fmt(row['median_time_s'])} "
+            f"| {fmt(row['p90_time_s'])} | {ratio(row['median_ratio_to_lower_bound'])} "
+            f"| {ratio(row['p95_ratio_to_lower_bound'])} | {fmt(row['median_ratio_to_local_consensus'])} |"
         )
         lines.append(line + (f" {fmt(row['disconnected_rate'], percent=True)} |" if disk else ""))
     (out / "evaluation.md").write_text("\n".join(lines) + "\n")

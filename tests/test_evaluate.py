@@ -13,6 +13,7 @@ import yaml
 from swarm import scenario as scenario_module
 from swarm.cli import main
 from swarm.data import collect, collect_config
+from swarm.evaluate import CONTROLLER_ORDER
 from swarm.policy import load_policy
 from swarm.scenario import resolve_model_path
 from swarm.sweep import SweepConfig, connected, run_cell
@@ -61,13 +62,17 @@ def test_evaluate_tiny_grid_shares_cells_with_sweep(tmp_path, capsys):
     for name in ("evaluation.csv", "evaluation.md", "max_pairwise_N4.png", "ratio_to_lower_bound.png"):
         assert (out / name).is_file(), name
     rows = {(r["topology"], r["controller"]): r for r in csv.DictReader((out / "evaluation.csv").open())}
-    assert len(rows) == 6
+    assert len(rows) == 2 * len(CONTROLLER_ORDER)  # the model beside every baseline, on both graphs
+    assert float(rows["cycle", "mec_flood"]["median_ratio_to_lower_bound"]) < float(
+        rows["cycle", "local_consensus"]["median_ratio_to_lower_bound"]
+    )
     assert float(rows["cycle", "local_consensus"]["median_ratio_to_local_consensus"]) == 1.0
     assert float(rows["cycle", "gnn"]["median_ratio_to_local_consensus"]) < 1.0  # faster on the cycle
     assert rows["disk", "gnn"]["disconnected_rate"] != "" and rows["cycle", "gnn"]["disconnected_rate"] == ""
     cells = sorted(path.name for path in (out / "cells").iterdir())
     # the cycle's local-consensus and centralized cells were read from the sweep, not rerun
-    assert not any(name.startswith("cycle_4_local") or name.startswith("cycle_4_central") for name in cells)
+    assert "cycle_4_local_consensus.npz" not in cells and "cycle_4_centralized.npz" not in cells
+    assert "cycle_4_mec_flood.npz" in cells  # not in that sweep: run here
     assert any(name.startswith("cycle_4_gnn-") for name in cells)  # the model's cell, named by its hash
 
     # --limit cuts cached full cells to their first starts; the model's cell runs on those starts
