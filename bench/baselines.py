@@ -73,6 +73,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=int, default=1000)
     parser.add_argument("--loss-consensus-starts", type=int, default=100)
     parser.add_argument("--only", nargs="*", help="run only these controllers (the tables read every cache)")
+    parser.add_argument(
+        "--graphs", nargs="*", help="run only cells on these graphs (the tables read every cache)"
+    )
     parser.add_argument("--tables-only", action="store_true", help="write the tables from cached cells only")
     args = parser.parse_args(argv)
     out, reuse = Path(args.out), tuple(Path(d) for d in args.reuse)
@@ -89,6 +92,7 @@ def main(argv: list[str] | None = None) -> int:
                 cell = {k: v[:first] if isinstance(v, np.ndarray) and v.ndim else v for k, v in full.items()}
         runnable = not args.tables_only and (controller != "gnn" or args.run_model)
         runnable = runnable and (args.only is None or controller in args.only)
+        runnable = runnable and (args.graphs is None or graph in args.graphs)
         if cell is None and runnable:
             print(f"running {graph} N={count} loss={loss:g} {controller}", file=sys.stderr, flush=True)
             cell = cached_cell(out, config, graph, count, controller, None, reuse)

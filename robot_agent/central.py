@@ -2,11 +2,12 @@
 
 ``centralized`` (thesis eq. 3.1 on the complete graph) and ``centralized_mec`` (full speed toward
 the minimum enclosing circle's centre of the current positions, ``swarm.experts``) need every
-robot's pose at tick k, so they cannot run on board the robots: this single process subscribes to every pose (``swarm/<run>/robot/*/pose``, the one
-wildcard over robots in the runtime, and the reason the controller is not decentralized),
-waits for all poses of tick k, and publishes every robot's wheel command for tick k. It holds the
-liveliness token of every robot's controller (``alive/agent/<i>``), so the sim waits for it as
-for N agents, and records itself in ``<log-dir>/central.json``.
+robot's pose at tick k, so they cannot run on board the robots: this single process subscribes to
+every pose (``swarm/<run>/robot/*/pose``, the one wildcard over robots in the runtime, and the
+reason the controller is not decentralized), waits for all poses of tick k, and publishes every
+robot's wheel command for tick k. It holds the liveliness token of every robot's controller
+(``alive/agent/<i>``), so the sim waits for it as for N agents, and records itself in
+``<log-dir>/central.json``.
 """
 
 from __future__ import annotations
