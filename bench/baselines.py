@@ -76,6 +76,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--graphs", nargs="*", help="run only cells on these graphs (the tables read every cache)"
     )
+    parser.add_argument("--skip", nargs="*", default=[], help="do not run these GRAPH:N:CONTROLLER cells")
     parser.add_argument("--tables-only", action="store_true", help="write the tables from cached cells only")
     args = parser.parse_args(argv)
     out, reuse = Path(args.out), tuple(Path(d) for d in args.reuse)
@@ -93,6 +94,7 @@ def main(argv: list[str] | None = None) -> int:
         runnable = not args.tables_only and (controller != "gnn" or args.run_model)
         runnable = runnable and (args.only is None or controller in args.only)
         runnable = runnable and (args.graphs is None or graph in args.graphs)
+        runnable = runnable and f"{graph}:{count}:{controller}" not in args.skip
         if cell is None and runnable:
             print(f"running {graph} N={count} loss={loss:g} {controller}", file=sys.stderr, flush=True)
             cell = cached_cell(out, config, graph, count, controller, None, reuse)
