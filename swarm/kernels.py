@@ -220,6 +220,31 @@ def _diameter_above(positions: np.ndarray, threshold_m: float, above: np.ndarray
         above[env] = found
 
 
+def _lists_connected(neighbour_index: np.ndarray, reached: np.ndarray, connected: np.ndarray) -> None:
+    """``connected[b]``: is every robot of environment b reachable from robot 0 over the padded
+    neighbour lists ``(B, N, K)`` (-1 ends a list)? Breadth-first search; ``reached`` ``(B, N)`` scratch."""
+    batch, count, slots = neighbour_index.shape
+    for env in numba.prange(batch):
+        for i in range(count):
+            reached[env, i] = -1
+        reached[env, 0] = 0  # reached[env, :found] is the queue, in order of discovery
+        queue = np.empty(count, dtype=np.int64)
+        queue[0] = 0
+        head, tail = 0, 1
+        while head < tail:
+            i = queue[head]
+            head += 1
+            for k in range(slots):
+                j = neighbour_index[env, i, k]
+                if j < 0:
+                    break
+                if reached[env, j] < 0:
+                    reached[env, j] = 0
+                    queue[tail] = j
+                    tail += 1
+        connected[env] = tail == count
+
+
 # Robots (rows) per call from which the multi-threaded variant is used (environment variable
 # SWARM_PARALLEL_MIN_ROBOTS overrides it; threads only pay off on otherwise idle cores).
 PARALLEL_MIN_ROBOTS = int(os.environ.get("SWARM_PARALLEL_MIN_ROBOTS", 50_000))
@@ -246,3 +271,4 @@ dense_to_lists = _serial_and_parallel(_dense_to_lists)
 disk_degrees = _serial_and_parallel(_disk_degrees)
 disk_lists = _serial_and_parallel(_disk_lists)
 diameter_above = _serial_and_parallel(_diameter_above)
+lists_connected = _serial_and_parallel(_lists_connected)

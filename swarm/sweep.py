@@ -173,6 +173,15 @@ def connected(adjacency: np.ndarray) -> np.ndarray:
     return reached.min(axis=1) > 0
 
 
+def links_connected(links) -> np.ndarray:
+    """:func:`connected` for ``swarm.links.Links`` (a breadth-first search per environment, numba)."""
+    batch, count = links.shape
+    reached = np.empty((batch, count), dtype=np.int64)
+    result = np.empty(batch, dtype=np.bool_)
+    kernels.lists_connected(np.ascontiguousarray(links.index), reached, result)
+    return result
+
+
 def converge_batch(
     sim: KinematicSim,
     threshold_m: float,
@@ -198,7 +207,7 @@ def converge_batch(
         above = _above_threshold(sim.poses, threshold_m)
         last_above[active[above]] = tick
         if disconnected is not None:
-            disconnected[active[~connected(sim.adjacency())]] = True
+            disconnected[active[~links_connected(sim.links())]] = True
         if tick == max_ticks:
             break
         settled = tick - last_above[active] >= hold_ticks

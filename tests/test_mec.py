@@ -304,3 +304,16 @@ def test_sweep_runs_mec_flood_on_the_line_sorted_by_x():
     sim = KinematicSim(ROBOT, MecFlood(ROBOT, DT), DT, ordered, adjacency=adjacency)
     times = converge_batch(sim, 0.2, 200.0, 5.0)
     assert not np.isnan(times).any()
+
+
+def test_disconnection_check_of_the_sweep_agrees_with_the_dense_one():
+    from swarm.links import Links
+    from swarm.sweep import connected, links_connected
+
+    rng = np.random.default_rng(0)
+    positions = rng.uniform(-3, 3, (200, 20, 2))
+    for radius in (1.4, 1.7, 2.5):
+        links = Links.disk(positions, radius)
+        dense = connected(links.dense)
+        assert 0 < dense.mean() < 1 or radius == 2.5
+        np.testing.assert_array_equal(links_connected(links), dense)
