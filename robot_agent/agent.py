@@ -57,8 +57,9 @@ import numpy as np
 import zenoh
 
 from swarm import wire
+from swarm.controller_kinds import robot_controller
 from swarm.faults import DROPPED, HEARD, LOST, LinkFaults, message_max_age_ticks, select_message
-from swarm.onboard import robot_controller, wheels_one
+from swarm.onboard import wheels_one
 from swarm.robot import RobotParams
 
 SERVER_LOST_S = 5.0

@@ -76,7 +76,7 @@ def _onboard_local_consensus(args: ControllerArgs):
 def _onboard_gnn(args: ControllerArgs):
     from swarm.onboard import onboard_policy
 
-    return onboard_policy(args)
+    return onboard_policy(args.policy, args.robot, args.robot_count)
 
 
 def _onboard_mec_flood(args: ControllerArgs):
@@ -155,3 +155,24 @@ def onboard_controller(name: str, args: ControllerArgs):
     if kind.onboard is None:
         raise ValueError(f"controller {name!r} runs as one central process, not on board a robot")
     return kind.onboard(args)
+
+
+def robot_controller(
+    kind: str,
+    robot: RobotParams,
+    gain: float = 1.0,
+    policy_bytes: bytes | None = None,
+    robot_count: int = 0,
+    control_period_s: float = 0.05,
+    options: Mapping[str, Any] | None = None,
+):
+    """The onboard controller of one robot (what a robot agent runs). ``gnn`` loads the policy
+    file's bytes with the scenario's robot parameters; ``options`` is the scenario's ``controller``
+    section (``mec_flood``: directions, reverse). Central kinds (``centralized``,
+    ``centralized_mec``) are not onboard controllers: they run as one central process
+    (``python -m robot_agent.central``); ValueError for them and for unknown kinds."""
+    spec = {**(options or {}), "gain": gain}
+    args = ControllerArgs.from_spec(
+        spec, robot, control_period_s, robot_count=robot_count, policy=policy_bytes
+    )
+    return onboard_controller(kind, args)

@@ -14,13 +14,12 @@ wheel speeds by :func:`swarm.robot.point_velocity_to_wheels`.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from typing import Any, Protocol
 
 import numpy as np
 
 from swarm import mec
-from swarm.controller_kinds import ControllerArgs, onboard_controller
 from swarm.robot import RobotParams
 
 
@@ -166,33 +165,13 @@ class OnboardMecFlood:
         return np.array(u_world), np.array(message)
 
 
-def onboard_policy(args: ControllerArgs) -> OnboardController:
-    """The ``gnn`` policy file's bytes (``args.policy``) as an onboard controller."""
-    if args.policy is None:
+def onboard_policy(policy_bytes: bytes | None, robot: RobotParams, robot_count: int) -> OnboardController:
+    """The ``gnn`` policy file's bytes as an onboard controller (``robot_count`` feeds the thesis's
+    ``N - 1`` normaliser)."""
+    if policy_bytes is None:
         raise ValueError("controller 'gnn' needs a policy file (controller.model)")
     try:
         from swarm.policy import load_policy
     except ImportError as error:
         raise ValueError(f"controller 'gnn' needs swarm.policy, not available here: {error}") from None
-    return _PolicyAdapter(load_policy(args.policy, args.robot, args.robot_count))
-
-
-def robot_controller(
-    kind: str,
-    robot: RobotParams,
-    gain: float = 1.0,
-    policy_bytes: bytes | None = None,
-    robot_count: int = 0,
-    control_period_s: float = 0.05,
-    options: Mapping[str, Any] | None = None,
-) -> OnboardController:
-    """The onboard controller of one robot (``swarm.controller_kinds``). ``gnn`` loads the policy
-    file's bytes with the scenario's robot parameters (``robot_count`` feeds the thesis's ``N - 1``
-    normaliser); ``options`` is the scenario's ``controller`` section (``mec_flood``: directions,
-    reverse). Central kinds (``centralized``, ``centralized_mec``) are not onboard controllers: they
-    run as one central process (``python -m robot_agent.central``)."""
-    spec = {**(options or {}), "gain": gain}
-    args = ControllerArgs.from_spec(
-        spec, robot, control_period_s, robot_count=robot_count, policy=policy_bytes
-    )
-    return onboard_controller(kind, args)
+    return _PolicyAdapter(load_policy(policy_bytes, robot, robot_count))

@@ -30,7 +30,6 @@ from swarm.controller_kinds import CONTROLLER_KINDS
 from swarm.faults import FAULT_KINDS
 from swarm.robot import RobotParams
 
-
 DEFAULT_MODEL_NAME = "gnn_default.npz"  # in <project root>/models, for controller gnn without a model
 
 

@@ -290,7 +290,7 @@ def _converge_starts(
             times[chunk] = converge_batch(
                 sim, config.threshold_m, config.max_duration_s, config.hold_s, on_progress, part
             )
-            if part is not None:
+            if part is not None and disconnected is not None:
                 disconnected[chunk] = part
         return times, disconnected
     disconnected = np.zeros(len(poses), dtype=bool) if adjacency is None else None

@@ -18,6 +18,7 @@ from test_runtime import Run, agent_records, graphs_min_distance
 
 from swarm import graphs
 from swarm.cli import main
+from swarm.controller_kinds import robot_controller
 from swarm.controllers import LocalConsensus
 from swarm.faults import (
     DROPPED,
@@ -34,7 +35,7 @@ from swarm.faults import (
     usable_ticks,
 )
 from swarm.kinematic import KinematicSim
-from swarm.onboard import OnboardLocalConsensus, robot_controller
+from swarm.onboard import OnboardLocalConsensus
 from swarm.policy import load_policy, save_policy
 from swarm.results import read_trajectory, summarize
 from swarm.robot import RobotParams, point_velocity_to_wheels

@@ -13,12 +13,13 @@ import numpy as np
 import pytest
 
 from swarm import graphs, metrics
+from swarm.controller_kinds import robot_controller
 from swarm.controllers import CentralizedMec, MecFlood
 from swarm.experts import centralized_mec_velocity, drive_toward_velocity
 from swarm.faults import LinkFaults
 from swarm.kinematic import KinematicSim
 from swarm.mec_kernels import welzl_circle
-from swarm.onboard import OnboardMecFlood, robot_controller
+from swarm.onboard import OnboardMecFlood
 from swarm.robot import RobotParams, point_velocity_to_wheels
 from swarm.scenario import ScenarioError, parse_scenario
 from swarm.sweep import SweepConfig, converge_batch

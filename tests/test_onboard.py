@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 
 from swarm import graphs
+from swarm.controller_kinds import robot_controller
 from swarm.controllers import LocalConsensus
 from swarm.links import Links
-from swarm.onboard import OnboardLocalConsensus, robot_controller, wheels_one
+from swarm.onboard import OnboardLocalConsensus, wheels_one
 from swarm.robot import RobotParams, controlled_point, point_velocity_to_wheels
 
 
