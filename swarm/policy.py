@@ -4,8 +4,10 @@ The file is one ``.npz`` (``numpy.savez``, no pickles): every weight under its t
 ``state_dict`` name as float32, plus ``__metadata__``, UTF-8 JSON bytes::
 
     {"format": "gnn-swarm-policy", "format_version": 1,
-     "model": {"kind": "model1" | "model2" | "two_branch" | "gnn" | "gnn_mlp", "activation", widths...},
+     "model": {"kind": "model1" | "model2" | "two_branch" | "gnn" | "gnn_mlp" | "gnn_flood",
+               "activation", widths...},
      "features": {"hops": K, "phi_source": "m" | "output", "normaliser": "degree" | "n_minus_1"},
+     (no features for gnn_flood)
      "feature_scale_m": 1.0, "output_scale_mps": 0.5,
      "robot": {RobotParams fields}, "training": {free-form provenance}}
 
@@ -16,6 +18,12 @@ robot-frame point velocity ``output_scale_mps * y`` (the gated ``gnn`` outputs m
 
 ``Policy`` is a batched controller (``swarm.controllers``), so ``KinematicSim`` runs it, and has
 the per-robot ``act_one`` that a robot agent runs with the messages it actually heard.
+
+Kind ``gnn_flood`` (``swarm.models.flood``, the recurrent max-flooding GNN) loads as
+:class:`FloodPolicy`: it has no hop features but a memory, which is also its message. Per robot
+(``act_one``) the object keeps that robot's memory, so each robot needs its own instance
+(``FloodPolicy.fresh``); batched (``act``) the memory is the robot's own last message, which the
+engine hands back in the inbox, so the batched form is stateless.
 """
 
 from __future__ import annotations
@@ -40,6 +48,9 @@ FORMAT_VERSION = 1
 METADATA_KEY = "__metadata__"
 MIRROR = np.array([1.0, -1.0])  # reflection about the robot's heading axis, in its own frame
 COSINE_EPS_M = 1e-3  # as swarm.models.gnn
+FLOOD_KIND = "gnn_flood"
+FLOOD_SOLVE_EPS = 1e-9  # as swarm.models.flood
+FLOOD_RHO_EPS_M = 1e-6
 
 _ACTIVATIONS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
     "relu": lambda x: np.maximum(x, 0.0),
@@ -186,6 +197,8 @@ class Policy(FeatureController):
         if METADATA_KEY not in arrays:
             raise PolicyFormatError("policy file has no metadata")
         metadata = json.loads(arrays.pop(METADATA_KEY).tobytes().decode("utf-8"))
+        if metadata.get("model", {}).get("kind") == FLOOD_KIND:
+            return FloodPolicy(metadata, arrays, robot, robot_count)
         return cls(metadata, arrays, robot, robot_count)
 
     def act_one(
@@ -282,7 +295,9 @@ class Policy(FeatureController):
         return gain[..., None] * (weights[..., None] * f).sum(-2)
 
 
-def load_policy(source: str | Path | bytes, robot: RobotParams | None = None, robot_count: int = 0) -> Policy:
+def load_policy(
+    source: str | Path | bytes, robot: RobotParams | None = None, robot_count: int = 0
+) -> Policy | FloodPolicy:
     return Policy.load(source, robot, robot_count)
 
 
@@ -297,3 +312,145 @@ def save_policy(path: str | Path, metadata: dict, arrays: dict[str, np.ndarray])
         payload[METADATA_KEY] = encoded
         np.savez(file, **payload)
     return path
+
+
+def _check_format(metadata: dict) -> None:
+    if metadata.get("format") != FORMAT:
+        raise PolicyFormatError(f"not a policy file (format {metadata.get('format')!r})")
+    if metadata.get("format_version") != FORMAT_VERSION:
+        raise PolicyFormatError(
+            f"policy format version {metadata.get('format_version')!r}, this code reads {FORMAT_VERSION}"
+        )
+
+
+class FloodPolicy:
+    """The recurrent max-flooding GNN (``swarm.models.flood``, kind ``gnn_flood``) with numpy.
+
+    Message (and memory) of a robot: ``[h^+ (P), h^- (P), 1]``; the last entry marks a real message
+    (the engine's inbox starts as zeros). Equations: ``swarm.models.flood``.
+    """
+
+    centralized = False
+
+    def __init__(
+        self,
+        metadata: dict,
+        arrays: dict[str, np.ndarray],
+        robot: RobotParams | None = None,
+        robot_count: int = 0,
+    ):
+        _check_format(metadata)
+        self.metadata = metadata
+        self.model = metadata["model"]
+        self.kind = self.model["kind"]
+        self.robot = robot if robot is not None else RobotParams(**metadata["robot"])
+        self.robot_count = robot_count
+        self.output_scale_mps = float(metadata["output_scale_mps"])
+        self._arrays = arrays
+        arrays = {name: np.asarray(value, dtype=np.float64) for name, value in arrays.items()}
+        try:
+            self.projections = arrays["projections"]
+            self._weights_net = _layers(arrays, "weights_net")
+            self._steer = _layers(arrays, "steer")
+        except KeyError as error:
+            raise PolicyFormatError(f"gnn_flood policy lacks weights {error}") from None
+        self.directions = int(self.model["directions"])
+        if self.projections.shape != (self.directions, 2):
+            raise PolicyFormatError(
+                f"projections has shape {self.projections.shape}, expected ({self.directions}, 2)"
+            )
+        self.message_dim = 2 * self.directions + 1
+        self._norms = np.sqrt((self.projections**2).sum(-1))
+        self._unit = self.projections / self._norms[:, None]
+        self._steer_activation = _ACTIVATIONS[self.model["activation"]]
+        self.reset()
+
+    def fresh(self) -> FloodPolicy:
+        """Another robot's instance of the same policy (own, empty memory)."""
+        return FloodPolicy(self.metadata, self._arrays, self.robot, self.robot_count)
+
+    def reset(self) -> None:
+        """Forget the memory (a robot that starts, or restarts, knows only what it sees from then on)."""
+        self._memory: np.ndarray | None = None
+
+    # -- the network, any leading shape ---------------------------------------------------------
+
+    def own_values(self, axle_m: np.ndarray) -> np.ndarray:
+        projected = axle_m @ self.projections.T
+        return np.concatenate([projected, -projected], axis=-1)
+
+    def target(self, memory: np.ndarray) -> np.ndarray:
+        """World-frame target ``(..., 2)`` from the memory ``(..., 2P)`` (weighted least squares)."""
+        count = self.directions
+        upper, lower = memory[..., :count], memory[..., count:]
+        width = (upper + lower) / self._norms
+        middle = 0.5 * (upper - lower) / self._norms
+        relative = width / (width.max(axis=-1, keepdims=True) + 1e-9)
+        stacked = np.stack([np.roll(relative, 1, -1), relative, np.roll(relative, -1, -1)], axis=-1)
+        logits = _mlp(self._weights_net, stacked, np.tanh)[..., 0]
+        logits = logits - logits.max(axis=-1, keepdims=True)
+        soft = np.exp(logits)
+        floor = self.model["weight_floor"]
+        a = floor / count + (1.0 - floor) * soft / soft.sum(axis=-1, keepdims=True)
+        ux, uy = self._unit[:, 0], self._unit[:, 1]
+        xx = (a * ux * ux).sum(-1) + FLOOD_SOLVE_EPS
+        xy = (a * ux * uy).sum(-1)
+        yy = (a * uy * uy).sum(-1) + FLOOD_SOLVE_EPS
+        bx = (a * middle * ux).sum(-1)
+        by = (a * middle * uy).sum(-1)
+        det = xx * yy - xy * xy
+        return np.stack([(yy * bx - xy * by) / det, (xx * by - xy * bx) / det], axis=-1)
+
+    def steer_local(self, poses: np.ndarray, target: np.ndarray) -> np.ndarray:
+        """Raw robot-frame point velocity ``(..., 2)`` (before the robot's saturation)."""
+        c, s = np.cos(poses[..., 2]), np.sin(poses[..., 2])
+        dx, dy = target[..., 0] - poses[..., 0], target[..., 1] - poses[..., 1]
+        rx, ry = c * dx + s * dy, -s * dx + c * dy
+        rho = np.sqrt(rx * rx + ry * ry + FLOOD_RHO_EPS_M**2)
+        features = np.stack([rx / rho, ry / rho, np.minimum(rho / self.model["rho_cap_m"], 1.0)], axis=-1)
+        return self.output_scale_mps * _mlp(self._steer, features, self._steer_activation)
+
+    def raw_step(
+        self, poses: np.ndarray, memory: np.ndarray | None, inbox: np.ndarray, heard: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The numpy reference of the whole tick, dense: poses ``(B, N, 3)``, own memory ``(B, N, 2P)``
+        or None, neighbours' last memories ``inbox (B, N, 2P)``, ``heard (B, N, N)`` bool ->
+        raw ``u_local`` (zero where nobody was heard) and the new memory. Same as ``FloodGNN.step``."""
+        values = self.own_values(poses[..., :2])
+        if memory is not None:
+            values = np.maximum(values, memory)
+        if heard.any():
+            masked = np.where(heard[..., None], inbox[:, None, :, :], -np.inf)
+            values = np.maximum(values, masked.max(axis=2))
+        u_local = self.steer_local(poses, self.target(values))
+        u_local[~heard.any(axis=-1)] = 0.0
+        return u_local, values
+
+    # -- the controller forms --------------------------------------------------------------------
+
+    def act(
+        self, poses: np.ndarray, points: np.ndarray, inbox: np.ndarray, heard: Links
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Batched (``swarm.controllers``): the compiled kernel ``swarm.flood_kernel`` (numba)."""
+        from swarm import flood_kernel
+
+        return flood_kernel.act(self, poses, inbox, heard)
+
+    def act_one(
+        self, pose: np.ndarray, neighbour_messages: np.ndarray, robot_count: int | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """One robot, with the memory this object keeps: pose ``(3,)``, the ``(m, 2P+1)`` messages it
+        heard -> ``u_world (2,)``, its message."""
+        pose = np.asarray(pose, dtype=np.float64)
+        heard = np.asarray(neighbour_messages, dtype=np.float64).reshape(-1, self.message_dim)
+        values = self.own_values(pose[:2])
+        if self._memory is not None:
+            values = np.maximum(values, self._memory)
+        if len(heard):
+            values = np.maximum(values, heard[:, :-1].max(axis=0))
+        self._memory = values
+        message = np.append(values, 1.0)
+        if not len(heard):
+            return np.zeros(2), message
+        u_local = saturate_local_velocity(self.steer_local(pose, self.target(values)), self.robot)
+        return rotate(u_local, pose[2]), message

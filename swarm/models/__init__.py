@@ -12,6 +12,8 @@ import torch
 
 from swarm.features import FeatureSpec
 from swarm.models.base import PolicyModel, TorchController
+from swarm.models.flood import KIND as FLOOD_KIND
+from swarm.models.flood import FloodGNN, build_flood
 from swarm.models.gnn import GatedGraphFilter, MLPGraphFilter
 from swarm.models.thesis import Model1, Model2, TwoBranch
 
@@ -25,6 +27,7 @@ MODELS: dict[str, type[PolicyModel]] = {
 
 __all__ = [
     "MODELS",
+    "FloodGNN",
     "GatedGraphFilter",
     "MLPGraphFilter",
     "Model1",
@@ -37,9 +40,11 @@ __all__ = [
 ]
 
 
-def build_model(config: dict) -> PolicyModel:
+def build_model(config: dict) -> PolicyModel | FloodGNN:
     """A fresh model from ``{"model": {"kind", ...architecture}, "features", "feature_scale_m",
-    "output_scale_mps"}`` (``PolicyModel.config()``)."""
+    "output_scale_mps"}`` (``PolicyModel.config()``; ``gnn_flood``: ``FloodGNN.config()``)."""
+    if config["model"]["kind"] == FLOOD_KIND:
+        return build_flood(config)
     architecture = dict(config["model"])
     kind = architecture.pop("kind")
     if kind not in MODELS:
@@ -49,7 +54,7 @@ def build_model(config: dict) -> PolicyModel:
     return MODELS[kind](FeatureSpec.from_dict(config["features"]), **architecture, **scales)
 
 
-def load_checkpoint(path: str | Path) -> tuple[PolicyModel, dict]:
+def load_checkpoint(path: str | Path) -> tuple[PolicyModel | FloodGNN, dict]:
     """A model and the checkpoint dictionary saved by ``swarm.train``."""
     checkpoint = torch.load(path, map_location="cpu", weights_only=False)
     model = build_model(checkpoint["model_config"])

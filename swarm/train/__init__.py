@@ -7,6 +7,7 @@ from __future__ import annotations
 ALGORITHMS: dict[str, str] = {
     "bc": "swarm.train.bc",
     "dagger": "swarm.train.dagger",
+    "flood": "swarm.train.flood",
     "dqn": "swarm.rl.dqn",
     "ppo": "swarm.train.ppo",
 }

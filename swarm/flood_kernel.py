@@ -1,0 +1,231 @@
+"""Compiled batched forward of the max-flooding GNN (``gnn_flood``) inside the kinematic engine.
+
+One numba pass over every robot of every environment does the whole tick of
+``swarm.policy.FloodPolicy``: memory update (max over own memory, own projection and heard
+messages), weighted-least-squares target, steering MLP, the robot's saturation and the rotation to
+the world frame. Same arithmetic as the numpy reference ``FloodPolicy.raw_step`` (to rounding:
+``tests/test_flood.py``); no fastmath, so the per-start results are those of the per-robot form.
+Threads are used for large batches only (``swarm.kernels.PARALLEL_MIN_ROBOTS``).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from swarm import kernels
+
+RELU, TANH = 0, 1
+
+
+def _flood_tick(
+    poses,
+    inbox,
+    neighbour_index,
+    projections,
+    norms,
+    unit,
+    weight_w0,
+    weight_b0,
+    weight_w1,
+    weight_b1,
+    weight_floor,
+    steer_weights,
+    steer_biases,
+    steer_shapes,
+    activation,
+    output_scale,
+    rho_cap,
+    v_max,
+    ratio,
+    solve_eps,
+    rho_eps,
+    u_world,
+    outbox,
+):
+    """One tick: poses ``(B, N, 3)``, inbox ``(B, C, 2P + 1)`` (columns 0..N-1: every robot's own last
+    message), neighbour lists ``(B, N, S)`` into the inbox's columns -> ``u_world (B, N, 2)``,
+    ``outbox (B, N, 2P + 1)``. Steering layers flattened: layer l has weights
+    ``steer_weights[offset : offset + out * in]`` (row-major ``(out, in)``),
+    ``steer_shapes[l] = (in, out)``."""
+    batch, count = poses.shape[0], poses.shape[1]
+    slots = neighbour_index.shape[2]
+    p_count = projections.shape[0]
+    dim = 2 * p_count
+    hidden_w = weight_w0.shape[0]
+    layers = steer_shapes.shape[0]
+    widest = 3
+    for layer in range(layers):
+        widest = max(widest, steer_shapes[layer, 1])
+    for env in numba.prange(batch):
+        values = np.empty(dim)
+        width = np.empty(p_count)
+        middle = np.empty(p_count)
+        logits = np.empty(p_count)
+        buffer_a = np.empty(widest)
+        buffer_b = np.empty(widest)
+        for i in range(count):
+            x = poses[env, i, 0]
+            y = poses[env, i, 1]
+            theta = poses[env, i, 2]
+            own_valid = inbox[env, i, dim] > 0.0
+            for p in range(p_count):
+                projected = x * projections[p, 0] + y * projections[p, 1]
+                hi = projected
+                lo = -projected
+                if own_valid:
+                    hi = max(hi, inbox[env, i, p])
+                    lo = max(lo, inbox[env, i, p_count + p])
+                values[p] = hi
+                values[p_count + p] = lo
+            heard = False
+            for k in range(slots):
+                j = neighbour_index[env, i, k]
+                if j < 0:
+                    break
+                heard = True
+                for d in range(dim):
+                    values[d] = max(values[d], inbox[env, j, d])
+            for d in range(dim):
+                outbox[env, i, d] = values[d]
+            outbox[env, i, dim] = 1.0
+            if not heard:
+                u_world[env, i, 0] = 0.0
+                u_world[env, i, 1] = 0.0
+                continue
+            largest = -np.inf
+            for p in range(p_count):
+                width[p] = (values[p] + values[p_count + p]) / norms[p]
+                middle[p] = 0.5 * (values[p] - values[p_count + p]) / norms[p]
+                largest = max(largest, width[p])
+            largest += 1e-9
+            top = -np.inf
+            for p in range(p_count):
+                before = width[(p - 1) % p_count] / largest
+                here = width[p] / largest
+                after = width[(p + 1) % p_count] / largest
+                logit = weight_b1[0]
+                for h in range(hidden_w):
+                    z = (
+                        weight_b0[h]
+                        + weight_w0[h, 0] * before
+                        + weight_w0[h, 1] * here
+                        + weight_w0[h, 2] * after
+                    )
+                    logit += weight_w1[0, h] * math.tanh(z)
+                logits[p] = logit
+                top = max(top, logit)
+            total = 0.0
+            for p in range(p_count):
+                logits[p] = math.exp(logits[p] - top)
+                total += logits[p]
+            xx = solve_eps
+            xy = 0.0
+            yy = solve_eps
+            bx = 0.0
+            by = 0.0
+            for p in range(p_count):
+                a = weight_floor / p_count + (1.0 - weight_floor) * logits[p] / total
+                ux = unit[p, 0]
+                uy = unit[p, 1]
+                xx += a * ux * ux
+                xy += a * ux * uy
+                yy += a * uy * uy
+                bx += a * middle[p] * ux
+                by += a * middle[p] * uy
+            det = xx * yy - xy * xy
+            cx = (yy * bx - xy * by) / det
+            cy = (xx * by - xy * bx) / det
+            c = math.cos(theta)
+            s = math.sin(theta)
+            dx = cx - x
+            dy = cy - y
+            rx = c * dx + s * dy
+            ry = -s * dx + c * dy
+            rho = math.sqrt(rx * rx + ry * ry + rho_eps * rho_eps)
+            buffer_a[0] = rx / rho
+            buffer_a[1] = ry / rho
+            buffer_a[2] = min(rho / rho_cap, 1.0)
+            offset = 0
+            for layer in range(layers):
+                fan_in = steer_shapes[layer, 0]
+                fan_out = steer_shapes[layer, 1]
+                for o in range(fan_out):
+                    z = steer_biases[layer, o]
+                    base = offset + o * fan_in
+                    for q in range(fan_in):
+                        z += steer_weights[base + q] * buffer_a[q]
+                    if layer < layers - 1:
+                        z = max(z, 0.0) if activation == RELU else math.tanh(z)
+                    buffer_b[o] = z
+                offset += fan_out * fan_in
+                for o in range(fan_out):
+                    buffer_a[o] = buffer_b[o]
+            ux = output_scale * buffer_a[0]
+            uy = output_scale * buffer_a[1]
+            biggest = abs(ux) + ratio * abs(uy)
+            scale = min(1.0, v_max / max(biggest, 1e-12))
+            ux *= scale
+            uy *= scale
+            u_world[env, i, 0] = c * ux - s * uy
+            u_world[env, i, 1] = s * ux + c * uy
+
+
+_serial = numba.njit(cache=True)(_flood_tick)
+_parallel = numba.njit(cache=True, parallel=True)(_flood_tick)
+
+
+def packed(policy) -> tuple:
+    """The policy's weights as the kernel's arguments (cached on the policy)."""
+    cached = getattr(policy, "_kernel_arguments", None)
+    if cached is not None:
+        return cached
+    (w0, b0), (w1, b1) = policy._weights_net
+    layers = policy._steer
+    widest = max(weight.shape[0] for weight, _ in layers)
+    biases = np.zeros((len(layers), widest))
+    for index, (weight, bias) in enumerate(layers):
+        biases[index, : weight.shape[0]] = 0.0 if bias is None else bias
+    arguments = (
+        np.ascontiguousarray(policy.projections),
+        np.ascontiguousarray(policy._norms),
+        np.ascontiguousarray(policy._unit),
+        np.ascontiguousarray(w0),
+        np.ascontiguousarray(b0),
+        np.ascontiguousarray(w1),
+        np.ascontiguousarray(b1),
+        float(policy.model["weight_floor"]),
+        np.ascontiguousarray(np.concatenate([weight.ravel() for weight, _ in layers])),
+        biases,
+        np.array([[weight.shape[1], weight.shape[0]] for weight, _ in layers], dtype=np.int64),
+        RELU if policy.model["activation"] == "relu" else TANH,
+        policy.output_scale_mps,
+        float(policy.model["rho_cap_m"]),
+        policy.robot.v_max_mps,
+        policy.robot.half_axle_m / policy.robot.offset_m,
+    )
+    policy._kernel_arguments = arguments
+    return arguments
+
+
+def act(policy, poses: np.ndarray, inbox: np.ndarray, heard) -> tuple[np.ndarray, np.ndarray]:
+    """``FloodPolicy.act``: ``(u_world (B, N, 2), outbox (B, N, 2P + 1))``."""
+    from swarm.policy import FLOOD_RHO_EPS_M, FLOOD_SOLVE_EPS
+
+    batch, count = poses.shape[:2]
+    u_world = np.empty((batch, count, 2))
+    outbox = np.empty((batch, count, policy.message_dim))
+    kernel = _parallel if batch * count >= kernels.PARALLEL_MIN_ROBOTS else _serial
+    kernel(
+        np.ascontiguousarray(poses, dtype=np.float64),
+        np.ascontiguousarray(inbox, dtype=np.float64),
+        np.ascontiguousarray(heard.index),
+        *packed(policy),
+        FLOOD_SOLVE_EPS,
+        FLOOD_RHO_EPS_M,
+        u_world,
+        outbox,
+    )
+    return u_world, outbox

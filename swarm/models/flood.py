@@ -1,0 +1,197 @@
+"""The recurrent max-flooding GNN (kind ``gnn_flood``): a learned decentralized rendezvous controller.
+
+Every robot i keeps a memory ``h_i`` of ``2P`` numbers, which is also its message. With learned
+projection vectors ``W_p`` (P of them, world frame, metres^-1 ... any length) and ``x_i(k)`` the
+robot's axle position at tick k::
+
+    h_i(k) = max( h_i(k-1),  [W x_i(k), -W x_i(k)],  max_{j heard at k} h_j(k-1) )     (elementwise)
+
+(``max`` over heard neighbours is PyG's ``aggr="max"``: permutation invariant and idempotent, so a
+lost or repeated message only delays the flood, never biases it). Once information from every
+robot has arrived, ``h_p^+ = max_j <x_j, W_p>`` and ``h_p^- = -min_j <x_j, W_p>`` over every
+position any robot has had: the support function of the swarm's extent along the learned
+directions, identical at every robot. Readout (robot i, tick k)::
+
+    width_p = (h_p^+ + h_p^-) / |W_p|,   mid_p = (h_p^+ - h_p^-) / (2 |W_p|)          metres
+    a = floor / P + (1 - floor) softmax_p( g(width_{p-1}, width_p, width_{p+1}) / max_q width_q )
+    c = argmin_c sum_p a_p (<c, W_p / |W_p|> - mid_p)^2                             (2 x 2 solve)
+    r = R(theta_i)^T (c - x_i),   rho = |r|
+    u_local = output_scale * MLP( r / rho, min(rho / rho_cap, 1) )                   robot frame
+
+``g`` is a small MLP shared by all directions (cyclic in p); the robot then saturates ``u_local``
+(``swarm.features.saturate_local_velocity``) and rotates it to the world. A robot that heard nobody
+this tick holds still (as every controller of the project).
+
+Inductive biases built in (and what is learned):
+
+- information: the only thing flooded is the max and min of learned linear projections of
+  positions. That is enough to represent the extent of the swarm (the support function, whose
+  exact form for all directions determines the convex hull), it floods one hop per tick exactly
+  like ``mec_flood``, and it is idempotent. The projections are in the world frame, which a robot
+  can compute because it knows its own absolute pose; a max over robot-frame quantities would have
+  no common meaning. What the projection vectors are is learned (initialised evenly spaced).
+- the target is translation-equivariant (shifting every position shifts ``c`` by the same; exactly,
+  up to the 1e-9 regularisation of the 2 x 2 solve) and scale-equivariant (the weights see widths
+  relative to the largest one), so it transfers from the N <= 12 of training to any swarm size;
+  the weights ``a`` (how much each direction's midpoint counts: the minimum enclosing circle's
+  centre is decided by the widest directions) are learned.
+- the steering is rotation-equivariant: it sees the target only in the robot's own frame, as
+  a direction and a capped distance, and the speed/turn/reverse law is a learned MLP.
+- nothing about the graph is assumed: the memory only grows, so any connected graph (fixed, changing,
+  lossy) eventually gives every robot the same target.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import torch
+from torch import nn
+
+from swarm.models.base import linears, saturate
+from swarm.policy import save_policy
+from swarm.robot import RobotParams
+
+KIND = "gnn_flood"
+SOLVE_EPS = 1e-9  # regularises the 2 x 2 solve (directions never all parallel in practice)
+RHO_EPS_M = 1e-6  # regularises the target direction of a robot on its target
+
+
+def _activation(name: str):
+    return torch.relu if name == "relu" else torch.tanh
+
+
+class FloodGNN(nn.Module):
+    """Torch form of ``gnn_flood`` (module docstring); ``swarm.policy.FloodPolicy`` is its numpy form."""
+
+    kind = KIND
+
+    def __init__(
+        self,
+        directions: int = 8,
+        steer_hidden: tuple[int, ...] | list[int] = (16, 16),
+        weight_hidden: int = 4,
+        weight_floor: float = 0.2,
+        rho_cap_m: float = 0.5,
+        output_scale_mps: float = 2.0,
+        activation: str = "relu",
+    ):
+        super().__init__()
+        self.directions = int(directions)
+        self.steer_hidden = [int(width) for width in steer_hidden]
+        self.weight_hidden = int(weight_hidden)
+        self.weight_floor = float(weight_floor)
+        self.rho_cap_m = float(rho_cap_m)
+        self.output_scale_mps = float(output_scale_mps)
+        self.activation = activation
+        angles = torch.arange(self.directions, dtype=torch.float32) * (math.pi / self.directions)
+        self.projections = nn.Parameter(torch.stack([torch.cos(angles), torch.sin(angles)], dim=-1))  # (P, 2)
+        self.weights_net = linears([3, self.weight_hidden, 1])
+        self.steer = linears([3, *self.steer_hidden, 2])
+
+    @property
+    def message_dim(self) -> int:
+        return 2 * self.directions
+
+    def architecture(self) -> dict:
+        return {
+            "kind": self.kind,
+            "activation": self.activation,
+            "directions": self.directions,
+            "steer_hidden": self.steer_hidden,
+            "weight_hidden": self.weight_hidden,
+            "weight_floor": self.weight_floor,
+            "rho_cap_m": self.rho_cap_m,
+        }
+
+    def config(self) -> dict:
+        return {"model": self.architecture(), "output_scale_mps": self.output_scale_mps}
+
+    # -- the recurrence ----------------------------------------------------------------------------
+
+    def own_values(self, axle_m: torch.Tensor) -> torch.Tensor:
+        """``[W x, -W x]`` ``(..., 2P)`` for axle positions ``(..., 2)``."""
+        projected = axle_m @ self.projections.T
+        return torch.cat([projected, -projected], dim=-1)
+
+    def update(
+        self, memory: torch.Tensor | None, axle_m: torch.Tensor, inbox: torch.Tensor, heard: torch.Tensor
+    ) -> torch.Tensor:
+        """New memory ``(B, N, 2P)``: own memory (None at a robot's first tick), own projection, and the
+        max over heard neighbours' last messages ``inbox (B, N, 2P)``; ``heard (B, N, N)`` bool."""
+        values = self.own_values(axle_m)
+        if memory is not None:
+            values = torch.maximum(values, memory)
+        if heard.any():
+            masked = torch.where(
+                heard[..., None], inbox[:, None, :, :], torch.full_like(inbox[:, None], -torch.inf)
+            )
+            values = torch.maximum(values, masked.amax(dim=2))
+        return values
+
+    def target(self, memory: torch.Tensor) -> torch.Tensor:
+        """World-frame target ``(..., 2)`` from the memory ``(..., 2P)`` (weighted least squares)."""
+        count = self.directions
+        upper, lower = memory[..., :count], memory[..., count:]
+        norms = torch.linalg.vector_norm(self.projections, dim=-1)
+        unit = self.projections / norms[:, None]
+        width = (upper + lower) / norms
+        middle = 0.5 * (upper - lower) / norms
+        relative = width / (width.amax(dim=-1, keepdim=True) + 1e-9)
+        stacked = torch.stack([relative.roll(1, -1), relative, relative.roll(-1, -1)], dim=-1)
+        logits = self._mlp(self.weights_net, stacked, torch.tanh)[..., 0]
+        a = self.weight_floor / count + (1.0 - self.weight_floor) * torch.softmax(logits, dim=-1)
+        xx = (a * unit[:, 0] ** 2).sum(-1) + SOLVE_EPS
+        xy = (a * unit[:, 0] * unit[:, 1]).sum(-1)
+        yy = (a * unit[:, 1] ** 2).sum(-1) + SOLVE_EPS
+        bx = (a * middle * unit[:, 0]).sum(-1)
+        by = (a * middle * unit[:, 1]).sum(-1)
+        det = xx * yy - xy * xy
+        return torch.stack([(yy * bx - xy * by) / det, (xx * by - xy * bx) / det], dim=-1)
+
+    @staticmethod
+    def _mlp(layers: nn.ModuleList, x: torch.Tensor, activation) -> torch.Tensor:
+        for index, layer in enumerate(layers):
+            x = layer(x)
+            if index < len(layers) - 1:
+                x = activation(x)
+        return x
+
+    def steer_local(self, poses: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+        """Raw (unsaturated) robot-frame point velocity ``(..., 2)`` toward the world ``target``."""
+        c, s = torch.cos(poses[..., 2]), torch.sin(poses[..., 2])
+        dx, dy = target[..., 0] - poses[..., 0], target[..., 1] - poses[..., 1]
+        rx, ry = c * dx + s * dy, -s * dx + c * dy
+        rho = torch.sqrt(rx * rx + ry * ry + RHO_EPS_M**2)
+        features = torch.stack([rx / rho, ry / rho, torch.clamp(rho / self.rho_cap_m, max=1.0)], dim=-1)
+        return self.output_scale_mps * self._mlp(self.steer, features, _activation(self.activation))
+
+    def step(
+        self,
+        poses: torch.Tensor,
+        memory: torch.Tensor | None,
+        inbox: torch.Tensor,
+        heard: torch.Tensor,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """One tick for ``(B, N, 3)`` poses: raw robot-frame ``u_local`` (zero where nobody was heard)
+        and the new memory (= the message)."""
+        memory = self.update(memory, poses[..., :2], inbox, heard)
+        u_local = self.steer_local(poses, self.target(memory))
+        heard_any = heard.any(dim=-1)
+        return torch.where(heard_any[..., None], u_local, torch.zeros_like(u_local)), memory
+
+    def saturated(self, u_local: torch.Tensor, robot: RobotParams) -> torch.Tensor:
+        return saturate(u_local, robot)
+
+    def export(self, path: str | Path, robot: RobotParams, training: dict | None = None) -> Path:
+        """Write the one-file policy that ``swarm.policy`` runs with numpy alone."""
+        arrays = {name: value.detach().cpu().numpy() for name, value in self.state_dict().items()}
+        metadata = {**self.config(), "robot": robot.model_dump(), "training": training or {}}
+        return save_policy(path, metadata, arrays)
+
+
+def build_flood(config: dict) -> FloodGNN:
+    architecture = dict(config["model"])
+    architecture.pop("kind")
+    return FloodGNN(**architecture, output_scale_mps=config.get("output_scale_mps", 2.0))

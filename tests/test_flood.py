@@ -1,0 +1,229 @@
+"""The max-flooding GNN (``gnn_flood``): torch == numpy (raw outputs), per robot == batched kernel,
+k-hop flood timing, decentralization, torch-free inference, and that it learns."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+import torch
+
+from swarm import graphs, kernels
+from swarm.faults import LinkFaults
+from swarm.kinematic import KinematicSim
+from swarm.models import build_model, load_checkpoint
+from swarm.models.flood import FloodGNN
+from swarm.policy import FloodPolicy, load_policy
+from swarm.robot import RobotParams
+
+ROBOT = RobotParams()
+DT = 0.05
+
+
+def _random_model(seed: int = 0, **architecture) -> FloodGNN:
+    torch.manual_seed(seed)
+    model = FloodGNN(**architecture)
+    with torch.no_grad():  # move off the evenly spaced initialisation: a generic model
+        model.projections.add_(0.3 * torch.randn_like(model.projections))
+        for parameter in model.weights_net.parameters():
+            parameter.mul_(3.0)
+    return model
+
+
+def _policy(tmp_path, model: FloodGNN) -> FloodPolicy:
+    return load_policy(model.export(tmp_path / "flood.npz", ROBOT))
+
+
+def _poses(seed: int, batch: int, count: int, half_width_m: float = 2.0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return np.concatenate(
+        [
+            rng.uniform(-half_width_m, half_width_m, (batch, count, 2)),
+            rng.uniform(-np.pi, np.pi, (batch, count, 1)),
+        ],
+        axis=-1,
+    )
+
+
+@pytest.mark.parametrize("activation", ["relu", "tanh"])
+def test_numpy_equals_torch_before_saturation(tmp_path, activation):
+    """Raw robot-frame outputs and memories over 25 ticks, with small features among them: a swarm a
+    few micrometres wide and a robot sitting on its target."""
+    model = _random_model(1, activation=activation, steer_hidden=(8, 8)).double()
+    policy = _policy(tmp_path, model.float())
+    model = model.double()
+    batch, count = 3, 6
+    poses = _poses(2, batch, count)
+    poses[1, :, :2] = 1e-6 * poses[1, :, :2] + 0.7  # a tiny swarm: widths of micrometres
+    heard = np.broadcast_to(graphs.cycle(count) > 0, (batch, count, count)).copy()
+    heard[2, 3] = False  # a robot that hears nobody
+    memory_np = memory_t = None
+    inbox = np.zeros((batch, count, model.message_dim))
+    rng = np.random.default_rng(3)
+    for tick in range(25):
+        tick_heard = heard if tick else np.zeros_like(heard)
+        u_np, new_np = policy.raw_step(poses, memory_np, inbox, tick_heard)
+        with torch.no_grad():
+            u_t, new_t = model.step(
+                torch.tensor(poses),
+                None if memory_t is None else memory_t,
+                torch.tensor(inbox),
+                torch.tensor(tick_heard),
+            )
+        np.testing.assert_allclose(u_np, u_t.numpy(), rtol=0, atol=1e-9)
+        np.testing.assert_allclose(new_np, new_t.numpy(), rtol=0, atol=1e-12)
+        assert np.all(u_np[2, 3] == 0.0)
+        if tick:
+            assert np.abs(u_np[0]).max() > 1e-3  # not trivially zero
+        memory_np, memory_t, inbox = new_np, new_t, new_np
+        poses = poses + rng.normal(0.0, 0.05, poses.shape)
+    # a robot on its own target (tiny rho): the same raw output in both forms
+    target = policy.target(memory_np[0, 0])
+    on_target = np.array([[[*target, 0.4]]])
+    with torch.no_grad():
+        raw_t = model.steer_local(torch.tensor(on_target), torch.tensor(target[None, None]))
+    np.testing.assert_allclose(policy.steer_local(on_target, target[None, None]), raw_t.numpy(), atol=1e-9)
+
+
+def _per_robot_run(policy: FloodPolicy, poses: np.ndarray, adjacency: np.ndarray, ticks: int):
+    """Each robot its own FloodPolicy instance, fed the messages its neighbours sent last tick."""
+    batch, count = poses.shape[:2]
+    agents = [[policy.fresh() for _ in range(count)] for _ in range(batch)]
+    messages = np.zeros((batch, count, policy.message_dim))
+    heard = np.zeros((batch, count, count), dtype=bool)
+    poses = poses.copy()
+    headings = np.stack([np.cos(poses[..., 2]), np.sin(poses[..., 2])], axis=-1)
+    points = poses[..., :2] + ROBOT.offset_m * headings
+    trajectory = [poses.copy()]
+    for _ in range(ticks):
+        u_world = np.zeros((batch, count, 2))
+        outgoing = np.zeros_like(messages)
+        for b in range(batch):
+            for i in range(count):
+                u_world[b, i], outgoing[b, i] = agents[b][i].act_one(poses[b, i], messages[b, heard[b, i]])
+        kernels.advance_unicycles(
+            poses.reshape(-1, 3),
+            headings.reshape(-1, 2),
+            points.reshape(-1, 2),
+            u_world.reshape(-1, 2),
+            ROBOT.offset_m,
+            ROBOT.half_axle_m,
+            ROBOT.v_max_mps,
+            DT,
+        )
+        messages, heard = outgoing, np.broadcast_to(adjacency > 0, heard.shape)
+        trajectory.append(poses.copy())
+    return np.array(trajectory), messages
+
+
+def test_per_robot_form_equals_batched_kernel(tmp_path):
+    policy = _policy(tmp_path, _random_model(4))
+    count, ticks = 7, 60
+    poses = _poses(5, 3, count)
+    adjacency = graphs.line(count)
+    sim = KinematicSim(ROBOT, policy, DT, poses, adjacency=adjacency)
+    batched = sim.rollout(ticks)
+    one_by_one, messages = _per_robot_run(policy, poses, adjacency, ticks)
+    assert np.abs(batched[-1] - batched[0]).max() > 0.1  # the robots did move
+    np.testing.assert_allclose(one_by_one, batched, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(messages, sim.inbox, rtol=0, atol=1e-9)
+
+
+def test_flood_reaches_k_hops_in_k_ticks(tmp_path):
+    """On a line, robot 0's memory at tick k is the max over robots j <= k hops away of their
+    projections at ticks <= k - j: hop j arrives j ticks late, never earlier."""
+    policy = _policy(tmp_path, _random_model(6))
+    count, ticks = 8, 12
+    poses = _poses(7, 1, count)
+    sim = KinematicSim(ROBOT, policy, DT, poses, adjacency=graphs.line(count))
+    trajectory = sim.rollout(ticks)
+    sim2 = KinematicSim(ROBOT, policy, DT, poses, adjacency=graphs.line(count))
+    for k in range(ticks):
+        sim2.step()
+        memory = sim2.inbox[0, 0, :-1]  # robot 0's message of tick k (= its memory)
+        expected = np.full(policy.message_dim - 1, -np.inf)
+        for j in range(min(k, count - 1) + 1):
+            for t in range(k - j + 1):
+                expected = np.maximum(expected, policy.own_values(trajectory[t, 0, j, :2]))
+        np.testing.assert_allclose(memory, expected, rtol=0, atol=1e-12)
+
+
+def test_decentralized_robot_0_of_a_line_of_10_ignores_robot_9_for_8_ticks(tmp_path):
+    policy = _policy(tmp_path, _random_model(8))
+    count = 10
+    poses = _poses(9, 1, count)
+    moved = poses.copy()
+    moved[0, 9] += [1.5, -2.0, 1.0]  # robot 9 elsewhere
+    runs = [
+        KinematicSim(ROBOT, policy, DT, p, adjacency=graphs.line(count)).rollout(20) for p in (poses, moved)
+    ]
+    # robot 0's action at tick k < 9 cannot depend on robot 9: its poses up to tick 9 are equal
+    np.testing.assert_array_equal(runs[0][:10, 0, 0], runs[1][:10, 0, 0])
+    assert np.abs(runs[0][-1, 0, 0] - runs[1][-1, 0, 0]).max() > 1e-6  # and later it does
+
+
+def test_lost_messages_only_delay_the_flood(tmp_path):
+    """Under 50% packet loss on a line of robots that hold still (a steering head that outputs zero),
+    every robot ends with exactly the lossless flood's memory: the extent of the whole swarm."""
+    model = _random_model(10)
+    with torch.no_grad():
+        model.steer[-1].weight.zero_()
+        model.steer[-1].bias.zero_()
+    policy = _policy(tmp_path, model)
+    count = 6
+    faults = LinkFaults.from_scenario_dict({"faults": [{"kind": "packet_loss", "p": 0.5}], "faults_seed": 1})
+    start = _poses(11, 2, count)
+    sim = KinematicSim(ROBOT, policy, DT, start, adjacency=graphs.line(count), link_faults=faults)
+    for _ in range(5):
+        sim.step()
+    assert not np.allclose(sim.inbox[:, :1, :-1], sim.inbox[:, :count, :-1])  # still flooding
+    for _ in range(200):
+        sim.step()
+    own = sim.inbox[:, :count, :-1]
+    np.testing.assert_array_equal(sim.poses, start)
+    assert sim.fault_counts["lost_by_fault"] > 0
+    exact = policy.own_values(sim.poses[..., :2]).max(axis=1, keepdims=True)
+    np.testing.assert_array_equal(own, np.broadcast_to(own[:, :1], own.shape))  # the same everywhere
+    np.testing.assert_allclose(own, np.broadcast_to(exact, own.shape), rtol=0, atol=1e-12)  # and complete
+
+
+def test_policy_runs_without_torch_or_numba(tmp_path):
+    path = _random_model(12).export(tmp_path / "flood.npz", ROBOT)
+    script = textwrap.dedent(
+        f"""
+        import sys
+        import numpy as np
+        import swarm.policy, swarm.onboard
+        controller = swarm.onboard.robot_controller(
+            "gnn", swarm.robot.RobotParams(), 1.0, open({str(path)!r}, "rb").read(), 4
+        )
+        heard = np.zeros((0, controller.message_dim))
+        for tick in range(3):
+            u, message = controller.act_one(np.array([0.1, 0.2, 0.3]), heard, np.ones(len(heard)))
+            assert message.shape == (controller.message_dim,)
+            heard = np.stack([message, message + 0.5])
+        assert np.abs(u).max() > 0
+        heavy = [name for name in ("torch", "numba") if name in sys.modules]
+        assert not heavy, heavy
+        print("ok")
+        """
+    )
+    result = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "ok"
+
+
+def test_checkpoint_round_trip_and_old_files_still_load(tmp_path):
+    model = _random_model(13)
+    torch.save({"model": model.state_dict(), "model_config": model.config()}, tmp_path / "c.pt")
+    again, _ = load_checkpoint(tmp_path / "c.pt")
+    assert isinstance(again, FloodGNN) and isinstance(build_model(model.config()), FloodGNN)
+    for name, value in model.state_dict().items():
+        torch.testing.assert_close(again.state_dict()[name], value)
+    from pathlib import Path
+
+    old = load_policy(Path(__file__).resolve().parent.parent / "models" / "gnn_bc.npz")
+    assert old.kind == "gnn"
