@@ -20,6 +20,65 @@ from swarm import kernels
 RELU, TANH = 0, 1
 
 
+@numba.njit(cache=True)
+def _target(
+    values,
+    p_count,
+    norms,
+    unit,
+    weight_w0,
+    weight_b0,
+    weight_w1,
+    weight_b1,
+    weight_floor,
+    solve_eps,
+    width,
+    middle,
+    logits,
+):
+    """The weighted-least-squares target of one memory (``FloodPolicy.target``)."""
+    hidden_w = weight_w0.shape[0]
+    largest = -np.inf
+    for p in range(p_count):
+        width[p] = (values[p] + values[p_count + p]) / norms[p]
+        middle[p] = 0.5 * (values[p] - values[p_count + p]) / norms[p]
+        largest = max(largest, width[p])
+    largest += 1e-9
+    top = -np.inf
+    for p in range(p_count):
+        before = width[(p - 1) % p_count] / largest
+        here = width[p] / largest
+        after = width[(p + 1) % p_count] / largest
+        logit = weight_b1[0]
+        for h in range(hidden_w):
+            z = weight_b0[h] + weight_w0[h, 0] * before + weight_w0[h, 1] * here + weight_w0[h, 2] * after
+            logit += weight_w1[0, h] * math.tanh(z)
+        logits[p] = logit
+        top = max(top, logit)
+    total = 0.0
+    for p in range(p_count):
+        logits[p] = math.exp(logits[p] - top)
+        total += logits[p]
+    xx = solve_eps
+    xy = 0.0
+    yy = solve_eps
+    bx = 0.0
+    by = 0.0
+    for p in range(p_count):
+        a = weight_floor / p_count + (1.0 - weight_floor) * logits[p] / total
+        ux = unit[p, 0]
+        uy = unit[p, 1]
+        xx += a * ux * ux
+        xy += a * ux * uy
+        yy += a * uy * uy
+        bx += a * middle[p] * ux
+        by += a * middle[p] * uy
+    det = xx * yy - xy * xy
+    cx = (yy * bx - xy * by) / det
+    cy = (xx * by - xy * bx) / det
+    return cx, cy
+
+
 def _flood_tick(
     poses,
     inbox,
@@ -45,16 +104,15 @@ def _flood_tick(
     u_world,
     outbox,
 ):
-    """One tick: poses ``(B, N, 3)``, inbox ``(B, C, 2P + 1)`` (columns 0..N-1: every robot's own last
+    """One tick: poses ``(B, N, 3)``, inbox ``(B, C, 2P + 3)`` (columns 0..N-1: every robot's own last
     message), neighbour lists ``(B, N, S)`` into the inbox's columns -> ``u_world (B, N, 2)``,
-    ``outbox (B, N, 2P + 1)``. Steering layers flattened: layer l has weights
+    ``outbox (B, N, 2P + 3)``. Steering layers flattened: layer l has weights
     ``steer_weights[offset : offset + out * in]`` (row-major ``(out, in)``),
     ``steer_shapes[l] = (in, out)``."""
     batch, count = poses.shape[0], poses.shape[1]
     slots = neighbour_index.shape[2]
     p_count = projections.shape[0]
     dim = 2 * p_count
-    hidden_w = weight_w0.shape[0]
     layers = steer_shapes.shape[0]
     widest = 3
     for layer in range(layers):
@@ -70,7 +128,7 @@ def _flood_tick(
             x = poses[env, i, 0]
             y = poses[env, i, 1]
             theta = poses[env, i, 2]
-            own_valid = inbox[env, i, dim] > 0.0
+            own_valid = inbox[env, i, dim + 2] > 0.0
             for p in range(p_count):
                 projected = x * projections[p, 0] + y * projections[p, 1]
                 hi = projected
@@ -88,56 +146,36 @@ def _flood_tick(
                 heard = True
                 for d in range(dim):
                     values[d] = max(values[d], inbox[env, j, d])
+            changed = not own_valid
             for d in range(dim):
                 outbox[env, i, d] = values[d]
-            outbox[env, i, dim] = 1.0
+                changed = changed or values[d] != inbox[env, i, d]
+            outbox[env, i, dim + 2] = 1.0
+            if changed:
+                cx, cy = _target(
+                    values,
+                    p_count,
+                    norms,
+                    unit,
+                    weight_w0,
+                    weight_b0,
+                    weight_w1,
+                    weight_b1,
+                    weight_floor,
+                    solve_eps,
+                    width,
+                    middle,
+                    logits,
+                )
+            else:  # the same memory as last tick: the same target (a function of the memory alone)
+                cx = inbox[env, i, dim]
+                cy = inbox[env, i, dim + 1]
+            outbox[env, i, dim] = cx
+            outbox[env, i, dim + 1] = cy
             if not heard:
                 u_world[env, i, 0] = 0.0
                 u_world[env, i, 1] = 0.0
                 continue
-            largest = -np.inf
-            for p in range(p_count):
-                width[p] = (values[p] + values[p_count + p]) / norms[p]
-                middle[p] = 0.5 * (values[p] - values[p_count + p]) / norms[p]
-                largest = max(largest, width[p])
-            largest += 1e-9
-            top = -np.inf
-            for p in range(p_count):
-                before = width[(p - 1) % p_count] / largest
-                here = width[p] / largest
-                after = width[(p + 1) % p_count] / largest
-                logit = weight_b1[0]
-                for h in range(hidden_w):
-                    z = (
-                        weight_b0[h]
-                        + weight_w0[h, 0] * before
-                        + weight_w0[h, 1] * here
-                        + weight_w0[h, 2] * after
-                    )
-                    logit += weight_w1[0, h] * math.tanh(z)
-                logits[p] = logit
-                top = max(top, logit)
-            total = 0.0
-            for p in range(p_count):
-                logits[p] = math.exp(logits[p] - top)
-                total += logits[p]
-            xx = solve_eps
-            xy = 0.0
-            yy = solve_eps
-            bx = 0.0
-            by = 0.0
-            for p in range(p_count):
-                a = weight_floor / p_count + (1.0 - weight_floor) * logits[p] / total
-                ux = unit[p, 0]
-                uy = unit[p, 1]
-                xx += a * ux * ux
-                xy += a * ux * uy
-                yy += a * uy * uy
-                bx += a * middle[p] * ux
-                by += a * middle[p] * uy
-            det = xx * yy - xy * xy
-            cx = (yy * bx - xy * by) / det
-            cy = (xx * by - xy * bx) / det
             c = math.cos(theta)
             s = math.sin(theta)
             dx = cx - x
@@ -215,6 +253,10 @@ def act(policy, poses: np.ndarray, inbox: np.ndarray, heard) -> tuple[np.ndarray
     from swarm.policy import FLOOD_RHO_EPS_M, FLOOD_SOLVE_EPS
 
     batch, count = poses.shape[:2]
+    if inbox.ndim != 3 or inbox.shape[-1] != policy.message_dim or inbox.shape[:2] < (batch, count):
+        raise ValueError(f"inbox of shape {inbox.shape}: expected (B, >= N, {policy.message_dim})")
+    if heard.index.size and heard.index.max() >= inbox.shape[1]:
+        raise ValueError("a neighbour index points past the inbox")
     u_world = np.empty((batch, count, 2))
     outbox = np.empty((batch, count, policy.message_dim))
     kernel = _parallel if batch * count >= kernels.PARALLEL_MIN_ROBOTS else _serial

@@ -326,8 +326,10 @@ def _check_format(metadata: dict) -> None:
 class FloodPolicy:
     """The recurrent max-flooding GNN (``swarm.models.flood``, kind ``gnn_flood``) with numpy.
 
-    Message (and memory) of a robot: ``[h^+ (P), h^- (P), 1]``; the last entry marks a real message
-    (the engine's inbox starts as zeros). Equations: ``swarm.models.flood``.
+    Message of a robot: ``[h^+ (P), h^- (P), c_x, c_y, 1]``: its memory, the target it computed from
+    it (a function of the memory alone, which lets the batched kernel skip the readout while the
+    memory does not change; neighbours ignore it) and a 1 that marks a real message (the engine's
+    inbox starts as zeros). Equations: ``swarm.models.flood``.
     """
 
     centralized = False
@@ -359,7 +361,8 @@ class FloodPolicy:
             raise PolicyFormatError(
                 f"projections has shape {self.projections.shape}, expected ({self.directions}, 2)"
             )
-        self.message_dim = 2 * self.directions + 1
+        self.memory_dim = 2 * self.directions
+        self.message_dim = self.memory_dim + 3
         self._norms = np.sqrt((self.projections**2).sum(-1))
         self._unit = self.projections / self._norms[:, None]
         self._steer_activation = _ACTIVATIONS[self.model["activation"]]
@@ -447,10 +450,11 @@ class FloodPolicy:
         if self._memory is not None:
             values = np.maximum(values, self._memory)
         if len(heard):
-            values = np.maximum(values, heard[:, :-1].max(axis=0))
+            values = np.maximum(values, heard[:, : self.memory_dim].max(axis=0))
         self._memory = values
-        message = np.append(values, 1.0)
+        target = self.target(values)
+        message = np.concatenate([values, target, [1.0]])
         if not len(heard):
             return np.zeros(2), message
-        u_local = saturate_local_velocity(self.steer_local(pose, self.target(values)), self.robot)
+        u_local = saturate_local_velocity(self.steer_local(pose, target), self.robot)
         return rotate(u_local, pose[2]), message

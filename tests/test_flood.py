@@ -143,8 +143,8 @@ def test_flood_reaches_k_hops_in_k_ticks(tmp_path):
     sim2 = KinematicSim(ROBOT, policy, DT, poses, adjacency=graphs.line(count))
     for k in range(ticks):
         sim2.step()
-        memory = sim2.inbox[0, 0, :-1]  # robot 0's message of tick k (= its memory)
-        expected = np.full(policy.message_dim - 1, -np.inf)
+        memory = sim2.inbox[0, 0, : policy.memory_dim]  # robot 0's message of tick k (= its memory)
+        expected = np.full(policy.memory_dim, -np.inf)
         for j in range(min(k, count - 1) + 1):
             for t in range(k - j + 1):
                 expected = np.maximum(expected, policy.own_values(trajectory[t, 0, j, :2]))
@@ -179,10 +179,10 @@ def test_lost_messages_only_delay_the_flood(tmp_path):
     sim = KinematicSim(ROBOT, policy, DT, start, adjacency=graphs.line(count), link_faults=faults)
     for _ in range(5):
         sim.step()
-    assert not np.allclose(sim.inbox[:, :1, :-1], sim.inbox[:, :count, :-1])  # still flooding
+    assert not np.allclose(sim.inbox[:, :1, : policy.memory_dim], sim.inbox[:, :count, : policy.memory_dim])  # still flooding
     for _ in range(200):
         sim.step()
-    own = sim.inbox[:, :count, :-1]
+    own = sim.inbox[:, :count, : policy.memory_dim]
     np.testing.assert_array_equal(sim.poses, start)
     assert sim.fault_counts["lost_by_fault"] > 0
     exact = policy.own_values(sim.poses[..., :2]).max(axis=1, keepdims=True)
