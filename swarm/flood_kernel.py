@@ -2,8 +2,8 @@
 
 One numba pass over every robot of every environment does the whole tick of
 ``swarm.policy.FloodPolicy``: memory update (max over own memory, own projection and heard
-messages), weighted-least-squares target, steering MLP, the robot's saturation and the rotation to
-the world frame. Same arithmetic as the numpy reference ``FloodPolicy.raw_step`` (to rounding:
+messages), smoothed minimax target (damped Newton steps), steering MLP, the robot's saturation and
+the rotation to the world frame. Same arithmetic as the numpy reference ``FloodPolicy.raw_step`` (to rounding:
 ``tests/test_flood.py``); no fastmath, so the per-start results are those of the per-robot form.
 Threads are used for large batches only (``swarm.kernels.PARALLEL_MIN_ROBOTS``).
 """
@@ -26,56 +26,77 @@ def _target(
     p_count,
     norms,
     unit,
-    weight_w0,
-    weight_b0,
-    weight_w1,
-    weight_b1,
-    weight_floor,
-    solve_eps,
-    width,
-    middle,
-    logits,
+    tau_share,
+    newton_steps,
+    hessian_eps,
+    max_step,
+    tau_start,
+    support,
+    ux,
+    uy,
+    weight,
 ):
-    """The weighted-least-squares target of one memory (``FloodPolicy.target``)."""
-    hidden_w = weight_w0.shape[0]
-    largest = -np.inf
-    for p in range(p_count):
-        width[p] = (values[p] + values[p_count + p]) / norms[p]
-        middle[p] = 0.5 * (values[p] - values[p_count + p]) / norms[p]
-        largest = max(largest, width[p])
-    largest += 1e-9
-    top = -np.inf
-    for p in range(p_count):
-        before = width[(p - 1) % p_count] / largest
-        here = width[p] / largest
-        after = width[(p + 1) % p_count] / largest
-        logit = weight_b1[0]
-        for h in range(hidden_w):
-            z = weight_b0[h] + weight_w0[h, 0] * before + weight_w0[h, 1] * here + weight_w0[h, 2] * after
-            logit += weight_w1[0, h] * math.tanh(z)
-        logits[p] = logit
-        top = max(top, logit)
-    total = 0.0
-    for p in range(p_count):
-        logits[p] = math.exp(logits[p] - top)
-        total += logits[p]
-    xx = solve_eps
-    xy = 0.0
-    yy = solve_eps
+    """The smoothed minimax centre of one memory (``FloodPolicy.target``; same steps)."""
+    width = -np.inf
     bx = 0.0
     by = 0.0
     for p in range(p_count):
-        a = weight_floor / p_count + (1.0 - weight_floor) * logits[p] / total
-        ux = unit[p, 0]
-        uy = unit[p, 1]
-        xx += a * ux * ux
-        xy += a * ux * uy
-        yy += a * uy * uy
-        bx += a * middle[p] * ux
-        by += a * middle[p] * uy
-    det = xx * yy - xy * xy
-    cx = (yy * bx - xy * by) / det
-    cy = (xx * by - xy * bx) / det
+        upper = values[p] / norms[p]
+        lower = values[p_count + p] / norms[p]
+        support[p] = upper
+        support[p_count + p] = lower
+        ux[p] = unit[p, 0]
+        uy[p] = unit[p, 1]
+        ux[p_count + p] = -unit[p, 0]
+        uy[p_count + p] = -unit[p, 1]
+        width = max(width, upper + lower)
+        middle = 0.5 * (upper - lower)
+        bx += middle * unit[p, 0]
+        by += middle * unit[p, 1]
+    width += 1e-9
+    gxx = 0.0
+    gxy = 0.0
+    gyy = 0.0
+    for p in range(p_count):
+        gxx += unit[p, 0] * unit[p, 0]
+        gxy += unit[p, 0] * unit[p, 1]
+        gyy += unit[p, 1] * unit[p, 1]
+    det = gxx * gyy - gxy * gxy
+    cx = (gyy * bx - gxy * by) / det
+    cy = (gxx * by - gxy * bx) / det
+    directions = 2 * p_count
+    for step in range(newton_steps):
+        tau = width * (tau_start * (tau_share / tau_start) ** (step / max(newton_steps - 1, 1)))
+        top = -np.inf
+        for q in range(directions):
+            weight[q] = (support[q] - cx * ux[q] - cy * uy[q]) / tau
+            top = max(top, weight[q])
+        total = 0.0
+        for q in range(directions):
+            weight[q] = math.exp(weight[q] - top)
+            total += weight[q]
+        gx = 0.0
+        gy = 0.0
+        sxx = 0.0
+        sxy = 0.0
+        syy = 0.0
+        for q in range(directions):
+            w = weight[q] / total
+            gx += w * ux[q]
+            gy += w * uy[q]
+            sxx += w * ux[q] * ux[q]
+            sxy += w * ux[q] * uy[q]
+            syy += w * uy[q] * uy[q]
+        hxx = (sxx - gx * gx + hessian_eps) / tau
+        hxy = (sxy - gx * gy) / tau
+        hyy = (syy - gy * gy + hessian_eps) / tau
+        det = hxx * hyy - hxy * hxy
+        dx = (hyy * gx - hxy * gy) / det
+        dy = (hxx * gy - hxy * gx) / det
+        length = math.sqrt(dx * dx + dy * dy + 1e-30)
+        damp = min(max_step * width / length, 1.0)
+        cx += damp * dx
+        cy += damp * dy
     return cx, cy
 
 
@@ -86,11 +107,8 @@ def _flood_tick(
     projections,
     norms,
     unit,
-    weight_w0,
-    weight_b0,
-    weight_w1,
-    weight_b1,
-    weight_floor,
+    tau_share,
+    newton_steps,
     steer_weights,
     steer_biases,
     steer_shapes,
@@ -99,7 +117,9 @@ def _flood_tick(
     rho_cap,
     v_max,
     ratio,
-    solve_eps,
+    hessian_eps,
+    max_step,
+    tau_start,
     rho_eps,
     u_world,
     outbox,
@@ -119,9 +139,10 @@ def _flood_tick(
         widest = max(widest, steer_shapes[layer, 1])
     for env in numba.prange(batch):
         values = np.empty(dim)
-        width = np.empty(p_count)
-        middle = np.empty(p_count)
-        logits = np.empty(p_count)
+        support = np.empty(dim)
+        ux_all = np.empty(dim)
+        uy_all = np.empty(dim)
+        weight = np.empty(dim)
         buffer_a = np.empty(widest)
         buffer_b = np.empty(widest)
         for i in range(count):
@@ -157,15 +178,15 @@ def _flood_tick(
                     p_count,
                     norms,
                     unit,
-                    weight_w0,
-                    weight_b0,
-                    weight_w1,
-                    weight_b1,
-                    weight_floor,
-                    solve_eps,
-                    width,
-                    middle,
-                    logits,
+                    tau_share,
+                    newton_steps,
+                    hessian_eps,
+                    max_step,
+                    tau_start,
+                    support,
+                    ux_all,
+                    uy_all,
+                    weight,
                 )
             else:  # the same memory as last tick: the same target (a function of the memory alone)
                 cx = inbox[env, i, dim]
@@ -220,7 +241,6 @@ def packed(policy) -> tuple:
     cached = getattr(policy, "_kernel_arguments", None)
     if cached is not None:
         return cached
-    (w0, b0), (w1, b1) = policy._weights_net
     layers = policy._steer
     widest = max(weight.shape[0] for weight, _ in layers)
     biases = np.zeros((len(layers), widest))
@@ -230,11 +250,8 @@ def packed(policy) -> tuple:
         np.ascontiguousarray(policy.projections),
         np.ascontiguousarray(policy._norms),
         np.ascontiguousarray(policy._unit),
-        np.ascontiguousarray(w0),
-        np.ascontiguousarray(b0),
-        np.ascontiguousarray(w1),
-        np.ascontiguousarray(b1),
-        float(policy.model["weight_floor"]),
+        policy._tau_share,
+        int(policy.model["newton_steps"]),
         np.ascontiguousarray(np.concatenate([weight.ravel() for weight, _ in layers])),
         biases,
         np.array([[weight.shape[1], weight.shape[0]] for weight, _ in layers], dtype=np.int64),
@@ -250,7 +267,7 @@ def packed(policy) -> tuple:
 
 def act(policy, poses: np.ndarray, inbox: np.ndarray, heard) -> tuple[np.ndarray, np.ndarray]:
     """``FloodPolicy.act``: ``(u_world (B, N, 2), outbox (B, N, 2P + 1))``."""
-    from swarm.policy import FLOOD_RHO_EPS_M, FLOOD_SOLVE_EPS
+    from swarm.policy import FLOOD_HESSIAN_EPS, FLOOD_MAX_STEP, FLOOD_RHO_EPS_M, FLOOD_TAU_START
 
     batch, count = poses.shape[:2]
     if inbox.ndim != 3 or inbox.shape[-1] != policy.message_dim or inbox.shape[:2] < (batch, count):
@@ -265,7 +282,9 @@ def act(policy, poses: np.ndarray, inbox: np.ndarray, heard) -> tuple[np.ndarray
         np.ascontiguousarray(inbox, dtype=np.float64),
         np.ascontiguousarray(heard.index),
         *packed(policy),
-        FLOOD_SOLVE_EPS,
+        FLOOD_HESSIAN_EPS,
+        FLOOD_MAX_STEP,
+        FLOOD_TAU_START,
         FLOOD_RHO_EPS_M,
         u_world,
         outbox,

@@ -49,7 +49,9 @@ METADATA_KEY = "__metadata__"
 MIRROR = np.array([1.0, -1.0])  # reflection about the robot's heading axis, in its own frame
 COSINE_EPS_M = 1e-3  # as swarm.models.gnn
 FLOOD_KIND = "gnn_flood"
-FLOOD_SOLVE_EPS = 1e-9  # as swarm.models.flood
+FLOOD_HESSIAN_EPS = 1e-4  # as swarm.models.flood
+FLOOD_MAX_STEP = 0.5
+FLOOD_TAU_START = 0.2
 FLOOD_RHO_EPS_M = 1e-6
 
 _ACTIVATIONS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
@@ -352,7 +354,7 @@ class FloodPolicy:
         arrays = {name: np.asarray(value, dtype=np.float64) for name, value in arrays.items()}
         try:
             self.projections = arrays["projections"]
-            self._weights_net = _layers(arrays, "weights_net")
+            self._tau_share = float(np.exp(arrays["log_tau"]))
             self._steer = _layers(arrays, "steer")
         except KeyError as error:
             raise PolicyFormatError(f"gnn_flood policy lacks weights {error}") from None
@@ -383,26 +385,37 @@ class FloodPolicy:
         return np.concatenate([projected, -projected], axis=-1)
 
     def target(self, memory: np.ndarray) -> np.ndarray:
-        """World-frame target ``(..., 2)`` from the memory ``(..., 2P)`` (weighted least squares)."""
-        count = self.directions
-        upper, lower = memory[..., :count], memory[..., count:]
-        width = (upper + lower) / self._norms
-        middle = 0.5 * (upper - lower) / self._norms
-        relative = width / (width.max(axis=-1, keepdims=True) + 1e-9)
-        stacked = np.stack([np.roll(relative, 1, -1), relative, np.roll(relative, -1, -1)], axis=-1)
-        logits = _mlp(self._weights_net, stacked, np.tanh)[..., 0]
-        logits = logits - logits.max(axis=-1, keepdims=True)
-        soft = np.exp(logits)
-        floor = self.model["weight_floor"]
-        a = floor / count + (1.0 - floor) * soft / soft.sum(axis=-1, keepdims=True)
-        ux, uy = self._unit[:, 0], self._unit[:, 1]
-        xx = (a * ux * ux).sum(-1) + FLOOD_SOLVE_EPS
-        xy = (a * ux * uy).sum(-1)
-        yy = (a * uy * uy).sum(-1) + FLOOD_SOLVE_EPS
-        bx = (a * middle * ux).sum(-1)
-        by = (a * middle * uy).sum(-1)
-        det = xx * yy - xy * xy
-        return np.stack([(yy * bx - xy * by) / det, (xx * by - xy * bx) / det], axis=-1)
+        """World-frame target ``(..., 2)`` from the memory ``(..., 2P)``: the smoothed minimax centre,
+        damped Newton steps from the least-squares centre (``swarm.models.flood``)."""
+        count, unit = self.directions, self._unit
+        upper, lower = memory[..., :count] / self._norms, memory[..., count:] / self._norms
+        support = np.concatenate([upper, lower], axis=-1)
+        ux, uy = np.concatenate([unit[:, 0], -unit[:, 0]]), np.concatenate([unit[:, 1], -unit[:, 1]])
+        width = (upper + lower).max(axis=-1) + 1e-9
+        gram = unit.T @ unit
+        middle = 0.5 * (upper - lower)
+        bx, by = (middle * unit[:, 0]).sum(-1), (middle * unit[:, 1]).sum(-1)
+        det = gram[0, 0] * gram[1, 1] - gram[0, 1] ** 2
+        cx = (gram[1, 1] * bx - gram[0, 1] * by) / det
+        cy = (gram[0, 0] * by - gram[0, 1] * bx) / det
+        steps = self.model["newton_steps"]
+        for step in range(steps):
+            tau = width * (
+                FLOOD_TAU_START * (self._tau_share / FLOOD_TAU_START) ** (step / max(steps - 1, 1))
+            )
+            slack = (support - cx[..., None] * ux - cy[..., None] * uy) / tau[..., None]
+            weight = np.exp(slack - slack.max(axis=-1, keepdims=True))
+            weight /= weight.sum(axis=-1, keepdims=True)
+            gx, gy = (weight * ux).sum(-1), (weight * uy).sum(-1)
+            hxx = ((weight * ux * ux).sum(-1) - gx * gx + FLOOD_HESSIAN_EPS) / tau
+            hxy = ((weight * ux * uy).sum(-1) - gx * gy) / tau
+            hyy = ((weight * uy * uy).sum(-1) - gy * gy + FLOOD_HESSIAN_EPS) / tau
+            det = hxx * hyy - hxy * hxy
+            dx, dy = (hyy * gx - hxy * gy) / det, (hxx * gy - hxy * gx) / det
+            length = np.sqrt(dx * dx + dy * dy + 1e-30)
+            damp = np.minimum(FLOOD_MAX_STEP * width / length, 1.0)
+            cx, cy = cx + damp * dx, cy + damp * dy
+        return np.stack([cx, cy], axis=-1)
 
     def steer_local(self, poses: np.ndarray, target: np.ndarray) -> np.ndarray:
         """Raw robot-frame point velocity ``(..., 2)`` (before the robot's saturation)."""

@@ -12,13 +12,20 @@ robot has arrived, ``h_p^+ = max_j <x_j, W_p>`` and ``h_p^- = -min_j <x_j, W_p>`
 position any robot has had: the support function of the swarm's extent along the learned
 directions, identical at every robot. Readout (robot i, tick k)::
 
-    width_p = (h_p^+ + h_p^-) / |W_p|,   mid_p = (h_p^+ - h_p^-) / (2 |W_p|)          metres
-    a = floor / P + (1 - floor) softmax_p( g(width_{p-1}, width_p, width_{p+1}) / max_q width_q )
-    c = argmin_c sum_p a_p (<c, W_p / |W_p|> - mid_p)^2                             (2 x 2 solve)
+    u_q, s_q: the 2P unit directions [W_p / |W_p|, -W_p / |W_p|] and their support values in metres
+              [h_p^+ / |W_p|, h_p^- / |W_p|];  w = max_p (h_p^+ + h_p^-) / |W_p|  (the widest extent)
+    c = argmin_c  tau log sum_q exp((s_q - <c, u_q>) / tau),   tau = exp(log_tau) w       learned tau
     r = R(theta_i)^T (c - x_i),   rho = |r|
     u_local = output_scale * MLP( r / rho, min(rho / rho_cap, 1) )                   robot frame
 
-``g`` is a small MLP shared by all directions (cyclic in p); the robot then saturates ``u_local``
+``s_q - <c, u_q>`` is how far the swarm reaches beyond c along u_q; over all directions its max is
+the radius of the smallest circle around c that holds the swarm, so the minimiser is the minimum
+enclosing circle's centre (of the polygon the support lines bound; a soft max with temperature
+tau). It is computed by ``newton_steps`` damped Newton steps (each moves c by at most half the
+width) from the least-squares centre of the midpoints, the temperature falling geometrically from
+0.2 w to the learned tau (continuation), unrolled, so training differentiates through it. With
+P = 12 directions the result is within 1% of the radius of the exact centre for most swarms.
+The robot then saturates ``u_local``
 (``swarm.features.saturate_local_velocity``) and rotates it to the world. A robot that heard nobody
 this tick holds still (as every controller of the project).
 
@@ -30,11 +37,11 @@ Inductive biases built in (and what is learned):
   like ``mec_flood``, and it is idempotent. The projections are in the world frame, which a robot
   can compute because it knows its own absolute pose; a max over robot-frame quantities would have
   no common meaning. What the projection vectors are is learned (initialised evenly spaced).
-- the target is translation-equivariant (shifting every position shifts ``c`` by the same; exactly,
-  up to the 1e-9 regularisation of the 2 x 2 solve) and scale-equivariant (the weights see widths
-  relative to the largest one), so it transfers from the N <= 12 of training to any swarm size;
-  the weights ``a`` (how much each direction's midpoint counts: the minimum enclosing circle's
-  centre is decided by the widest directions) are learned.
+- the target is translation-equivariant (shifting every position shifts ``c`` by the same) and
+  scale-equivariant (tau, the step limit and the regularisation scale with the width), so it
+  transfers from the N <= 12 of training to any swarm size. That it is a minimum-enclosing-circle
+  centre of the flooded extent is built in (the expert's target); the directions and the
+  temperature are learned.
 - the steering is rotation-equivariant: it sees the target only in the robot's own frame, as
   a direction and a capped distance, and the speed/turn/reverse law is a learned MLP.
 - nothing about the graph is assumed: the memory only grows, so any connected graph (fixed, changing,
@@ -54,8 +61,16 @@ from swarm.policy import save_policy
 from swarm.robot import RobotParams
 
 KIND = "gnn_flood"
-SOLVE_EPS = 1e-9  # regularises the 2 x 2 solve (directions never all parallel in practice)
+HESSIAN_EPS = 1e-4  # regularises the Newton step's 2 x 2 solve (relative: the Hessian is O(1 / tau))
+MAX_STEP = 0.5  # a Newton step moves the centre by at most this share of the swarm's width
+TAU_START = 0.2  # temperature of the first Newton step, share of the width
 RHO_EPS_M = 1e-6  # regularises the target direction of a robot on its target
+
+
+def tau_share_at(step: int, steps: int, final_share):
+    """Temperature (share of the width) of Newton step ``step``: from ``TAU_START`` down to the learned
+    final share, geometrically (continuation: a large temperature first, so the steps converge)."""
+    return TAU_START * (final_share / TAU_START) ** (step / max(steps - 1, 1))
 
 
 def _activation(name: str):
@@ -69,10 +84,10 @@ class FloodGNN(nn.Module):
 
     def __init__(
         self,
-        directions: int = 8,
+        directions: int = 12,
         steer_hidden: tuple[int, ...] | list[int] = (16, 16),
-        weight_hidden: int = 4,
-        weight_floor: float = 0.2,
+        newton_steps: int = 12,
+        tau_share: float = 0.003,
         rho_cap_m: float = 0.5,
         output_scale_mps: float = 2.0,
         activation: str = "relu",
@@ -80,14 +95,13 @@ class FloodGNN(nn.Module):
         super().__init__()
         self.directions = int(directions)
         self.steer_hidden = [int(width) for width in steer_hidden]
-        self.weight_hidden = int(weight_hidden)
-        self.weight_floor = float(weight_floor)
+        self.newton_steps = int(newton_steps)
         self.rho_cap_m = float(rho_cap_m)
         self.output_scale_mps = float(output_scale_mps)
         self.activation = activation
         angles = torch.arange(self.directions, dtype=torch.float32) * (math.pi / self.directions)
         self.projections = nn.Parameter(torch.stack([torch.cos(angles), torch.sin(angles)], dim=-1))  # (P, 2)
-        self.weights_net = linears([3, self.weight_hidden, 1])
+        self.log_tau = nn.Parameter(torch.tensor(math.log(tau_share)))
         self.steer = linears([3, *self.steer_hidden, 2])
 
     @property
@@ -100,8 +114,7 @@ class FloodGNN(nn.Module):
             "activation": self.activation,
             "directions": self.directions,
             "steer_hidden": self.steer_hidden,
-            "weight_hidden": self.weight_hidden,
-            "weight_floor": self.weight_floor,
+            "newton_steps": self.newton_steps,
             "rho_cap_m": self.rho_cap_m,
         }
 
@@ -131,24 +144,37 @@ class FloodGNN(nn.Module):
         return values
 
     def target(self, memory: torch.Tensor) -> torch.Tensor:
-        """World-frame target ``(..., 2)`` from the memory ``(..., 2P)`` (weighted least squares)."""
+        """World-frame target ``(..., 2)`` from the memory ``(..., 2P)``: the smoothed minimax centre
+        (module docstring), ``newton_steps`` damped Newton steps from the least-squares centre."""
         count = self.directions
-        upper, lower = memory[..., :count], memory[..., count:]
         norms = torch.linalg.vector_norm(self.projections, dim=-1)
         unit = self.projections / norms[:, None]
-        width = (upper + lower) / norms
-        middle = 0.5 * (upper - lower) / norms
-        relative = width / (width.amax(dim=-1, keepdim=True) + 1e-9)
-        stacked = torch.stack([relative.roll(1, -1), relative, relative.roll(-1, -1)], dim=-1)
-        logits = self._mlp(self.weights_net, stacked, torch.tanh)[..., 0]
-        a = self.weight_floor / count + (1.0 - self.weight_floor) * torch.softmax(logits, dim=-1)
-        xx = (a * unit[:, 0] ** 2).sum(-1) + SOLVE_EPS
-        xy = (a * unit[:, 0] * unit[:, 1]).sum(-1)
-        yy = (a * unit[:, 1] ** 2).sum(-1) + SOLVE_EPS
-        bx = (a * middle * unit[:, 0]).sum(-1)
-        by = (a * middle * unit[:, 1]).sum(-1)
-        det = xx * yy - xy * xy
-        return torch.stack([(yy * bx - xy * by) / det, (xx * by - xy * bx) / det], dim=-1)
+        upper, lower = memory[..., :count] / norms, memory[..., count:] / norms
+        support = torch.cat([upper, lower], dim=-1)  # h(u) for the 2P directions u = [unit, -unit]
+        directions = torch.cat([unit, -unit], dim=0)
+        width = (upper + lower).amax(dim=-1) + 1e-9
+        share = torch.exp(self.log_tau)
+        gram = unit.T @ unit  # least squares: sum_p u_p u_p^T c = sum_p mid_p u_p
+        middle = 0.5 * (upper - lower)
+        bx, by = (middle * unit[:, 0]).sum(-1), (middle * unit[:, 1]).sum(-1)
+        det = gram[0, 0] * gram[1, 1] - gram[0, 1] ** 2
+        cx = (gram[1, 1] * bx - gram[0, 1] * by) / det
+        cy = (gram[0, 0] * by - gram[0, 1] * bx) / det
+        ux, uy = directions[:, 0], directions[:, 1]
+        for step in range(self.newton_steps):
+            tau = width * tau_share_at(step, self.newton_steps, share)
+            slack = (support - cx[..., None] * ux - cy[..., None] * uy) / tau[..., None]
+            weight = torch.softmax(slack, dim=-1)
+            gx, gy = (weight * ux).sum(-1), (weight * uy).sum(-1)
+            hxx = ((weight * ux * ux).sum(-1) - gx * gx + HESSIAN_EPS) / tau
+            hxy = ((weight * ux * uy).sum(-1) - gx * gy) / tau
+            hyy = ((weight * uy * uy).sum(-1) - gy * gy + HESSIAN_EPS) / tau
+            det = hxx * hyy - hxy * hxy
+            dx, dy = (hyy * gx - hxy * gy) / det, (hxx * gy - hxy * gx) / det
+            length = torch.sqrt(dx * dx + dy * dy + 1e-30)
+            damp = torch.clamp(MAX_STEP * width / length, max=1.0)
+            cx, cy = cx + damp * dx, cy + damp * dy
+        return torch.stack([cx, cy], dim=-1)
 
     @staticmethod
     def _mlp(layers: nn.ModuleList, x: torch.Tensor, activation) -> torch.Tensor:

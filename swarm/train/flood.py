@@ -60,10 +60,10 @@ class FloodConfig:
     seed: int = 0
     threads: int = 1
     # model (swarm.models.flood)
-    directions: int = 8
+    directions: int = 12
     steer_hidden: tuple[int, ...] = (16, 16)
-    weight_hidden: int = 4
-    weight_floor: float = 0.2
+    newton_steps: int = 12
+    tau_share: float = 0.003  # initial temperature / width of the target's soft minimax (learned)
     rho_cap_m: float = 0.5
     output_scale_mps: float = 2.0
     activation: str = "relu"
@@ -113,8 +113,8 @@ def build(config: FloodConfig) -> FloodGNN:
     return FloodGNN(
         config.directions,
         config.steer_hidden,
-        config.weight_hidden,
-        config.weight_floor,
+        config.newton_steps,
+        config.tau_share,
         config.rho_cap_m,
         config.output_scale_mps,
         config.activation,
