@@ -227,3 +227,23 @@ def test_checkpoint_round_trip_and_old_files_still_load(tmp_path):
 
     old = load_policy(Path(__file__).resolve().parent.parent / "models" / "gnn_bc.npz")
     assert old.kind == "gnn"
+
+
+def test_training_replay_memory_equals_the_policy_memory(tmp_path):
+    """The trainer's arg-max replay (``swarm.train.flood.argmax_positions``) rebuilds exactly the
+    memory the policy carries (``FloodPolicy.raw_step``), tick by tick."""
+    from swarm.train.flood import FloodConfig, argmax_positions, run_episode
+
+    model = _random_model(14)
+    policy = _policy(tmp_path, model)
+    config = FloodConfig(envs=2, graphs=("line", "disk"), episode_ticks=30, loss_p=(0.0,))
+    episode = run_episode(config, 6, policy, 1.0, np.random.default_rng(0))
+    positions = argmax_positions(episode, policy.projections, np.random.default_rng(1))
+    signed = np.concatenate([policy.projections, -policy.projections])
+    rebuilt = (positions.astype(np.float64) * signed).sum(-1)
+    memory, inbox = None, np.zeros((*episode["poses"].shape[1:3], policy.memory_dim))
+    for tick in range(30):
+        _, memory = policy.raw_step(episode["poses"][tick], memory, inbox, episode["heard"][tick])
+        inbox = memory
+        np.testing.assert_allclose(rebuilt[tick], memory, rtol=0, atol=1e-5)  # float32 positions
+    assert episode["heard"][1:].any() and not episode["heard"][0].any()

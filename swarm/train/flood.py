@@ -1,7 +1,7 @@
 """Imitation of ``centralized_mec`` by the max-flooding GNN: behavioural cloning, then DAgger, over
-whole episodes, with truncated backpropagation through time through the recurrent memory.
+whole episodes, with backpropagation through time through the recurrent max-memory.
 
-Reads top to bottom: hyperparameters, episodes (rollout + expert labels), the replay loss, the loop.
+Reads top to bottom: hyperparameters, episodes (rollout + expert labels), the replay, the loop.
 
 - An episode is a batch of random starts at one N <= 12, ``envs`` on each graph kind, run in
   ``KinematicSim`` for ``episode_ticks`` ticks. Each environment is driven for the WHOLE episode by
@@ -11,12 +11,15 @@ Reads top to bottom: hyperparameters, episodes (rollout + expert labels), the re
   iteration 0 is pure behavioural cloning). What is recorded: every tick's poses, who heard whom
   (the engine's timing: last tick's graph, nobody at tick 0) and the expert's label at that state
   (its point velocity in the robot frame after the robot's saturation, ``swarm.data``'s convention).
-- Replay: the torch model re-runs the episode from the recorded poses and links (its memory
-  recurs through the ticks); in a random share of the environments (``loss_p``) each message is dropped
-  independently, so the model also sees floods that lag. Loss: squared error of the saturated output
-  against the label, over robots that heard someone, in units of v_max^2. Gradients flow through
-  the memory for ``bptt_ticks`` ticks (the memory is detached between windows; one optimiser step
-  per window).
+- Replay: the memory recurrence re-runs over the recorded poses and links with the current
+  projections (numpy, every ``argmax_every`` epochs); in a random share of the environments
+  (``loss_p``) each message is dropped independently, so the model also learns from floods that lag.
+  It records, for every memory entry, the position whose projection the entry holds (its arg-max
+  over robots and past ticks). A max passes its gradient to its arg-max, so writing the memory as
+  ``<arg-max position, w_q>`` gives exactly the gradient of backpropagation through time through
+  the whole episode (no truncation needed) while the ticks train as independent rows: minibatches
+  of (tick, environment, robot) rows where the robot heard someone, Adam. Loss: squared error of
+  the saturated output against the label, in units of v_max^2.
 - Every iteration's model is exported and checked in closed loop (median ratio to the lower bound
   over the ``eval_cells``); the best iterate is the result (``policy.npz``).
 
@@ -85,7 +88,8 @@ class FloodConfig:
     epochs: tuple[int, ...] = (40, 5)  # passes over all episodes: iteration 0, then every later one
     lr: float = 3e-3
     lr_decay: float = 0.7  # per iteration
-    bptt_ticks: int = 40
+    batch_size: int = 2048  # (tick, environment, robot) rows per Adam step
+    argmax_every: int = 2  # epochs between replays of the memory arg-maxes for the current projections
     # closed-loop check of every iterate (starts per cell, time limit)
     eval_cells: tuple[tuple[str, int], ...] = (("line", 12), ("cycle", 12), ("random", 12), ("disk", 12))
     eval_starts: int = 32
@@ -212,53 +216,90 @@ def run_episode(
     return episode
 
 
-# -- the replay loss -----------------------------------------------------------------------------
+# -- the replay: memory arg-maxes, then supervised minibatches ---------------------------------------
 
 
-def replay_loss(
-    model: FloodGNN,
-    episode: dict,
-    robot: RobotParams,
-    config: FloodConfig,
-    generator: torch.Generator,
-    optimizer: torch.optim.Optimizer | None = None,
-) -> float:
-    """Mean loss over the episode; with an optimizer, one step per ``bptt_ticks`` window."""
-    poses = torch.as_tensor(episode["poses"], dtype=torch.float32)
-    heard = torch.as_tensor(episode["heard"])
-    labels = torch.as_tensor(episode["labels"], dtype=torch.float32) / robot.v_max_mps
-    loss_p = torch.as_tensor(episode["loss_p"], dtype=torch.float32)[None, :, None, None]
-    if bool((loss_p > 0).any()):
-        heard = heard & (torch.rand(heard.shape, generator=generator) >= loss_p)
-    memory, inbox = None, torch.zeros(*poses.shape[1:3], model.message_dim)
-    total, counted = 0.0, 0
-    window_loss, window_count = 0.0, 0
-    for tick in range(poses.shape[0]):
-        u_local, memory = model.step(poses[tick], memory, inbox, heard[tick])
-        inbox = memory
-        mask = heard[tick].any(dim=-1)
-        if mask.any():
-            error = (saturate(u_local, robot) / robot.v_max_mps - labels[tick])[mask]
-            window_loss = window_loss + (error * error).sum(-1).sum()
-            window_count += int(mask.sum())
-        end = tick == poses.shape[0] - 1 or (tick + 1) % config.bptt_ticks == 0
-        if end and window_count:
-            loss = window_loss / window_count
-            if optimizer is not None:
-                optimizer.zero_grad()
-                loss.backward()
-                optimizer.step()
-                memory, inbox = memory.detach(), inbox.detach()
-            total += float(loss.detach()) * window_count
-            counted += window_count
-            window_loss, window_count = 0.0, 0
-    return total / max(counted, 1)
+def argmax_positions(episode: dict, projections: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Replay the memory recurrence with numpy for the current projections ``(P, 2)`` and return, for
+    every tick, robot and memory entry, the position whose projection the entry holds:
+    ``(T, B, N, 2P, 2)`` float32. Messages are dropped with each environment's ``loss_p``.
+
+    ``h_q = <argmax position, w_q>`` with ``w = [W, -W]``: the memory as a function of the learned
+    projections, whose gradient is exactly backpropagation through time through the max (a max
+    routes its gradient to its arg-max), without unrolling the ticks."""
+    poses, heard = episode["poses"], episode["heard"]
+    ticks, batch, count = poses.shape[:3]
+    signed = np.concatenate([projections, -projections], axis=0)  # (2P, 2)
+    drop = episode["loss_p"][None, :, None, None]
+    kept = heard & (rng.random(heard.shape) >= drop)
+    out = np.empty((ticks, batch, count, len(signed), 2), dtype=np.float32)
+    values = positions = None
+    rows = np.arange(batch)[:, None, None]
+    for tick in range(ticks):
+        axle = poses[tick, :, :, :2]
+        own = axle @ signed.T  # (B, N, 2P)
+        own_positions = np.broadcast_to(axle[:, :, None, :], (*own.shape, 2))
+        if values is None:
+            new_values, new_positions = own, own_positions.copy()
+        else:
+            take = own > values
+            new_values = np.where(take, own, values)
+            new_positions = np.where(take[..., None], own_positions, positions)
+            masked = np.where(kept[tick][..., None], values[:, None, :, :], -np.inf)  # (B, N, N, 2P)
+            best = masked.argmax(axis=2)  # (B, N, 2P)
+            best_values = np.take_along_axis(masked, best[:, :, None, :], axis=2)[:, :, 0]
+            take = best_values > new_values
+            new_values = np.where(take, best_values, new_values)
+            neighbour_positions = positions[rows, best, np.arange(len(signed))[None, None, :]]
+            new_positions = np.where(take[..., None], neighbour_positions, new_positions)
+        values, positions = new_values, new_positions
+        out[tick] = positions
+    return out
 
 
 def saturate(u_local: torch.Tensor, robot: RobotParams) -> torch.Tensor:
     from swarm.models.base import saturate as torch_saturate
 
     return torch_saturate(u_local, robot)
+
+
+def rows_of(episodes: list[dict], model: FloodGNN, rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """Every (tick, environment, robot) where the robot heard someone, over all episodes."""
+    projections = model.projections.detach().double().numpy()
+    parts: dict[str, list] = {"positions": [], "poses": [], "labels": []}
+    for episode in episodes:
+        positions = argmax_positions(episode, projections, rng)
+        heard_any = episode["heard"].any(axis=-1)
+        parts["positions"].append(positions[heard_any])
+        parts["poses"].append(episode["poses"][heard_any].astype(np.float32))
+        parts["labels"].append(episode["labels"][heard_any].astype(np.float32))
+    return {key: np.concatenate(value) for key, value in parts.items()}
+
+
+def batch_loss(model: FloodGNN, positions, poses, labels, robot: RobotParams) -> torch.Tensor:
+    signed = torch.cat([model.projections, -model.projections], dim=0)
+    memory = (positions * signed).sum(-1)  # (R, 2P)
+    u_local = model.steer_local(poses, model.target(memory))
+    error = saturate(u_local, robot) / robot.v_max_mps - labels / robot.v_max_mps
+    return (error * error).sum(-1).mean()
+
+
+def fit_epoch(
+    model: FloodGNN, data: dict, robot: RobotParams, config: FloodConfig, optimizer, generator
+) -> float:
+    order = torch.randperm(len(data["labels"]), generator=generator)
+    tensors = {key: torch.as_tensor(value) for key, value in data.items()}
+    total = 0.0
+    for start in range(0, len(order), config.batch_size):
+        chosen = order[start : start + config.batch_size]
+        loss = batch_loss(
+            model, tensors["positions"][chosen], tensors["poses"][chosen], tensors["labels"][chosen], robot
+        )
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        total += float(loss.detach()) * len(chosen)
+    return total / len(order)
 
 
 # -- closed-loop check ---------------------------------------------------------------------------
@@ -311,23 +352,13 @@ def train(config: FloodConfig) -> Path:
         optimizer = torch.optim.Adam(model.parameters(), lr=config.lr * config.lr_decay**iteration)
         epochs = config.epochs[0] if iteration == 0 else config.epochs[-1]
         for epoch in range(epochs):
-            order = rng.permutation(len(episodes))
-            loss = float(
-                np.mean([replay_loss(model, episodes[e], robot, config, generator, optimizer) for e in order])
-            )
-            log.info(
-                "iteration %d epoch %d loss %.5f (%.0f s)",
-                iteration,
-                epoch,
-                loss,
-                time.perf_counter() - started,
-            )
+            if epoch % config.argmax_every == 0:  # the arg-maxes follow the learned projections
+                data = rows_of(episodes, model, rng)
+            loss = fit_epoch(model, data, robot, config, optimizer, generator)
+            elapsed = time.perf_counter() - started
+            log.info("iteration %d epoch %d loss %.5f (%.0f s)", iteration, epoch, loss, elapsed)
             if config.progress:
-                print(
-                    f"iteration {iteration} epoch {epoch} loss {loss:.5f} "
-                    f"({time.perf_counter() - started:.0f} s)",
-                    flush=True,
-                )
+                print(f"iteration {iteration} epoch {epoch} loss {loss:.5f} ({elapsed:.0f} s)", flush=True)
         policy_path = out / f"iter_{iteration}" / "policy.npz"
         torch.save(
             {"model": model.state_dict(), "model_config": model.config()},
