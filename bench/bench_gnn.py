@@ -2,10 +2,11 @@
 (``gnn_flood``, compiled batched forward ``swarm.flood_kernel``) at (B = 64, N = 100) and
 (B = 1024, N = 6), on cycle and random graphs. Target: 1e7 robot-steps/s.
 
-Reports the whole engine tick (forward + unicycle step) and the forward alone, plus the limit
-they imply: floating-point operations per robot-step of the forward (counted from the
-architecture) times the robot-steps/s measured gives the FLOP/s the kernel sustains; the machine's
-load average is recorded beside (the cores are shared). Writes bench/results/gnn.json.
+Reports the whole engine tick (forward + unicycle step) and the forward alone, per wall second and
+per CPU second of this process (the cores are shared: the load average is recorded beside; with
+one numba thread, robot-steps per CPU second is what one idle core would do), plus the limit they
+imply: floating-point operations per robot-step of the forward (counted from the architecture)
+times the robot-steps per CPU second gives the FLOP/s the kernel sustains on one core. Writes bench/results/gnn.json.
 
     python bench/bench_gnn.py [--model models/gnn_default.npz] [--ticks 200] [--repeats 5] [--threads 1]
 """
@@ -66,17 +67,20 @@ def measure(policy, batch: int, count: int, graph: str, ticks: int, repeats: int
     sim = make_sim(policy, batch, count, graph)
     for _ in range(10):  # compile and warm up
         sim.step()
-    engine, forward = [], []
+    engine, forward, engine_cpu, forward_cpu = [], [], [], []
     links = sim.links()
+    steps = batch * count * ticks
     for _ in range(repeats):
-        start = time.perf_counter()
+        start, start_cpu = time.perf_counter(), time.process_time()
         for _ in range(ticks):
             sim.step()
-        engine.append(batch * count * ticks / (time.perf_counter() - start))
-        start = time.perf_counter()
+        engine.append(steps / (time.perf_counter() - start))
+        engine_cpu.append(steps / (time.process_time() - start_cpu))
+        start, start_cpu = time.perf_counter(), time.process_time()
         for _ in range(ticks):
             flood_kernel.act(policy, sim.poses, sim.inbox, links)
-        forward.append(batch * count * ticks / (time.perf_counter() - start))
+        forward.append(steps / (time.perf_counter() - start))
+        forward_cpu.append(steps / (time.process_time() - start_cpu))
     degree = float((links.index >= 0).sum(-1).mean())
     flops = flops_per_robot_step(policy, degree)
     return {
@@ -89,9 +93,11 @@ def measure(policy, batch: int, count: int, graph: str, ticks: int, repeats: int
         "engine_robot_steps_per_s_best": float(np.max(engine)),
         "forward_robot_steps_per_s_median": float(np.median(forward)),
         "forward_robot_steps_per_s_best": float(np.max(forward)),
+        "engine_robot_steps_per_cpu_s_best": float(np.max(engine_cpu)),
+        "forward_robot_steps_per_cpu_s_best": float(np.max(forward_cpu)),
         "forward_flops_per_robot_step": flops,
-        "forward_gflops_per_s_best_unchanged_memory": round(
-            flops["total_unchanged"] * float(np.max(forward)) / 1e9, 2
+        "forward_gflops_per_cpu_s_unchanged_memory": round(
+            flops["total_unchanged"] * float(np.max(forward_cpu)) / 1e9, 2
         ),
     }
 
@@ -116,10 +122,11 @@ def main() -> None:
             row = measure(policy, batch, count, graph, args.ticks, args.repeats)
             results.append(row)
             print(
-                f"{graph:7s} B={batch:5d} N={count:4d}: engine {row['engine_robot_steps_per_s_best']:.3g}, "
-                f"forward {row['forward_robot_steps_per_s_best']:.3g} robot-steps/s "
-                f"({row['forward_flops_per_robot_step']['total_unchanged']:.0f} FLOP/robot-step, "
-                f"{row['forward_gflops_per_s_best_unchanged_memory']} GFLOP/s)"
+                f"{graph:7s} B={batch:5d} N={count:4d}: engine {row['engine_robot_steps_per_s_best']:.3g} "
+                f"({row['engine_robot_steps_per_cpu_s_best']:.3g} per CPU s), forward "
+                f"{row['forward_robot_steps_per_s_best']:.3g} ({row['forward_robot_steps_per_cpu_s_best']:.3g} "
+                f"per CPU s) robot-steps/s; {row['forward_flops_per_robot_step']['total_unchanged']:.0f} "
+                f"FLOP/robot-step, {row['forward_gflops_per_cpu_s_unchanged_memory']} GFLOP per CPU s"
             )
     report = {
         "benchmark": "gnn_flood forward inside the kinematic engine, robot-steps per second",

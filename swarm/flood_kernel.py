@@ -18,6 +18,7 @@ import numpy as np
 from swarm import kernels
 
 RELU, TANH = 0, 1
+CHUNKS = 64  # environments are split into this many chunks (threads), each with its own scratch
 
 
 @numba.njit(cache=True)
@@ -137,7 +138,8 @@ def _flood_tick(
     widest = 3
     for layer in range(layers):
         widest = max(widest, steer_shapes[layer, 1])
-    for env in numba.prange(batch):
+    chunks = min(batch, CHUNKS)
+    for chunk in numba.prange(chunks):  # scratch arrays once per chunk of environments
         values = np.empty(dim)
         support = np.empty(dim)
         ux_all = np.empty(dim)
@@ -145,7 +147,9 @@ def _flood_tick(
         weight = np.empty(dim)
         buffer_a = np.empty(widest)
         buffer_b = np.empty(widest)
-        for i in range(count):
+        for row in range((chunk * batch) // chunks * count, ((chunk + 1) * batch) // chunks * count):
+            env = row // count
+            i = row % count
             x = poses[env, i, 0]
             y = poses[env, i, 1]
             theta = poses[env, i, 2]
