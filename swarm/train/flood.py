@@ -74,7 +74,7 @@ class FloodConfig:
     graphs: tuple[str, ...] = GRAPHS
     sizes: tuple[int, ...] = (4, 6, 8, 10, 12)
     envs: int = 16  # environments per (graph, N) episode batch
-    episode_ticks: int = 200
+    episode_ticks: int = 160
     v_max_mps: float = 0.5
     control_period_s: float = 0.05
     min_separation_m: float = 0.4
@@ -90,6 +90,8 @@ class FloodConfig:
     lr_decay: float = 0.7  # per iteration
     batch_size: int = 2048  # (tick, environment, robot) rows per Adam step
     argmax_every: int = 2  # epochs between replays of the memory arg-maxes for the current projections
+    steering_rows: int = 512  # per Adam step: rows of the expert's steering law on random targets
+    steering_weight: float = 1.0
     # closed-loop check of every iterate (starts per cell, time limit)
     eval_cells: tuple[tuple[str, int], ...] = (("line", 12), ("cycle", 12), ("random", 12), ("disk", 12))
     eval_starts: int = 32
@@ -284,8 +286,24 @@ def batch_loss(model: FloodGNN, positions, poses, labels, robot: RobotParams) ->
     return (error * error).sum(-1).mean()
 
 
+def steering_rows(count: int, robot: RobotParams, config: FloodConfig, rng: np.random.Generator) -> tuple:
+    """The expert's own steering law on random (pose, target) pairs: ``centralized_mec`` applies
+    ``swarm.experts.drive_toward_velocity`` toward the MEC centre, so these are its labels for any
+    target (distances log-uniform from 1 cm to 5 m, every relative bearing). Episodes visit turning
+    states only in their first ticks; these rows keep the turning well represented."""
+    from swarm.experts import drive_toward_velocity
+
+    poses = np.concatenate([np.zeros((count, 2)), rng.uniform(-np.pi, np.pi, (count, 1))], axis=-1)
+    distance = np.exp(rng.uniform(np.log(0.01), np.log(5.0), count))
+    bearing = rng.uniform(-np.pi, np.pi, count)
+    targets = np.stack([distance * np.cos(bearing), distance * np.sin(bearing)], axis=-1)
+    u_world = drive_toward_velocity(poses, targets, robot.offset_m, robot.v_max_mps, config.control_period_s)
+    labels = saturate_local_velocity(world_to_local(u_world, poses[:, 2]), robot)
+    return tuple(torch.as_tensor(a, dtype=torch.float32) for a in (poses, targets, labels))
+
+
 def fit_epoch(
-    model: FloodGNN, data: dict, robot: RobotParams, config: FloodConfig, optimizer, generator
+    model: FloodGNN, data: dict, robot: RobotParams, config: FloodConfig, optimizer, generator, rng
 ) -> float:
     order = torch.randperm(len(data["labels"]), generator=generator)
     tensors = {key: torch.as_tensor(value) for key, value in data.items()}
@@ -295,6 +313,10 @@ def fit_epoch(
         loss = batch_loss(
             model, tensors["positions"][chosen], tensors["poses"][chosen], tensors["labels"][chosen], robot
         )
+        if config.steering_rows:
+            poses, targets, labels = steering_rows(config.steering_rows, robot, config, rng)
+            error = (saturate(model.steer_local(poses, targets), robot) - labels) / robot.v_max_mps
+            loss = loss + config.steering_weight * (error * error).sum(-1).mean()
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
@@ -354,7 +376,7 @@ def train(config: FloodConfig) -> Path:
         for epoch in range(epochs):
             if epoch % config.argmax_every == 0:  # the arg-maxes follow the learned projections
                 data = rows_of(episodes, model, rng)
-            loss = fit_epoch(model, data, robot, config, optimizer, generator)
+            loss = fit_epoch(model, data, robot, config, optimizer, generator, rng)
             elapsed = time.perf_counter() - started
             log.info("iteration %d epoch %d loss %.5f (%.0f s)", iteration, epoch, loss, elapsed)
             if config.progress:
