@@ -1,15 +1,16 @@
 #!/bin/sh
 # The evaluation of the learned max-flooding GNN (1000 starts per cell, kinematic engine, the
-# compiled batched forward), run from the project root. MODEL: the policy file evaluated.
+# compiled batched forward), run from the project root; the four sweeps are independent (they ran
+# two at a time). MODEL: the policy file evaluated (the cells are cached under its hash).
 set -e
-MODEL=${MODEL:-models/gnn_default.npz}
+MODEL=${MODEL:-models/gnn_flood.npz}
 OUT=${OUT:-docs/results/flood}
 S="swarm sweep --controllers gnn --model $MODEL --seeds 1000 --max-duration 300 --quiet"
-$S --topologies complete cycle line star random disk --sizes 6 12 24 50 100 --out $OUT/eval
+$S --topologies complete cycle line --sizes 6 12 24 50 100 --out $OUT/eval_a
+$S --topologies star random disk --sizes 6 12 24 50 100 --out $OUT/eval_b
 $S --topologies line_sorted --sizes 100 --out $OUT/eval_sorted
 $S --topologies cycle line --sizes 24 100 --packet-loss 0.5 --out $OUT/eval_loss50
-$S --topologies cycle line --sizes 24 100 --packet-loss 0.2 --out $OUT/eval_loss20
 python bench/flood_table.py --model $MODEL \
-    --new $OUT/eval/sweep.csv $OUT/eval_sorted/sweep.csv $OUT/eval_loss50/sweep.csv $OUT/eval_loss20/sweep.csv \
+    --new $OUT/eval_a/sweep.csv $OUT/eval_b/sweep.csv $OUT/eval_sorted/sweep.csv $OUT/eval_loss50/sweep.csv \
     --old docs/results/gnn_eval/default/evaluation.csv docs/results/gnn_eval/disk/evaluation.csv \
     --baselines docs/results/baselines/sweep.csv --out $OUT/comparison.md
