@@ -12,7 +12,7 @@ of docs/design.md. Targets: on sparse graphs the PPO median at most 0.8x tuned l
 consensus with no loss of success rate; on the complete graph within 1.1x the lower bound.
 Writes ``docs/results/rl/ppo/ppo_vs_tuned_lc.json`` and ``.md``.
 
-    python bench/eval_ppo.py models/gnn_ppo.npz [--bc models/gnn_default.npz] [--starts 1000]
+    python bench/eval_ppo.py models/gnn_ppo.npz [--bc models/gnn_graph_filter.npz] [--starts 1000]
 """
 
 from __future__ import annotations
@@ -249,7 +249,7 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("model", help="the PPO policy file")
-    parser.add_argument("--bc", default="models/gnn_default.npz", help="the BC policy file it started from")
+    parser.add_argument("--bc", default="models/gnn_graph_filter.npz", help="the BC policy file it started from")
     parser.add_argument("--topologies", nargs="+", default=["cycle", "line", "random", "complete"])
     parser.add_argument("--sizes", nargs="+", type=int, default=[20])
     parser.add_argument("--starts", type=int, default=1000)

@@ -169,7 +169,7 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--model", default="models/gnn_ppo.npz")
-    parser.add_argument("--bc", default="models/gnn_default.npz")
+    parser.add_argument("--bc", default="models/gnn_graph_filter.npz")
     parser.add_argument("--topology", default="cycle")
     parser.add_argument("--count", type=int, default=20)
     parser.add_argument(

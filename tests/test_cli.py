@@ -48,11 +48,11 @@ DURATIONS_S = {
     "random-local_consensus": 8.0,  # 7.15 s
     "weak-centralized": 5.0,  # 4.60 s: the centralized expert uses everyone's position, not the graph
     "weak-local_consensus": 3.5,  # triangles 2.95 s and 2.70 s; never globally
-    "complete-gnn": 5.0,  # 4.65 s (models/gnn_default.npz, the default of controller gnn)
-    "cycle-gnn": 5.5,  # 4.75 s
-    "line-gnn": 6.0,  # 5.15 s
-    "random-gnn": 5.0,  # 4.65 s
-    "weak-gnn": 3.5,  # two triangles, never globally
+    "complete-gnn": 5.0,  # 4.20 s (models/gnn_default.npz, the default of controller gnn)
+    "cycle-gnn": 5.0,  # 4.25 s
+    "line-gnn": 5.0,  # 4.25 s
+    "random-gnn": 5.0,  # 4.20 s
+    "weak-gnn": 3.5,  # two triangles 2.55 s and 2.45 s, never globally
 }
 
 

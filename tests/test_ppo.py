@@ -20,7 +20,7 @@ from swarm.robot import RobotParams, local_point_velocity_to_wheels
 from swarm.train import ppo
 
 ROOT = Path(__file__).resolve().parent.parent
-DEFAULT_MODEL = ROOT / "models" / "gnn_default.npz"
+DEFAULT_MODEL = ROOT / "models" / "gnn_graph_filter.npz"  # the graph filter PPO fine-tunes
 
 
 def tiny(out: Path, **overrides) -> ppo.PPOConfig:

@@ -19,7 +19,7 @@ value loss, entropy bonus, gradient clipping, linear learning-rate annealing).
 
 **Policy (decentralized execution).** The GNN of ``swarm.models.gnn`` (``GatedGraphFilter``),
 initialised from a behavioural-cloning policy file (``init_policy``, default
-``models/gnn_default.npz``). Robot i's observation is its robot-frame features ``(K, 2)``
+``models/gnn_graph_filter.npz``). Robot i's observation is its robot-frame features ``(K, 2)``
 (``swarm.features``): its own pose of tick k and the messages ``[p_j, Phi1_j..Phi(K-1)_j]`` its
 neighbours broadcast at tick k-1, so hop-h information is h ticks old (docs/design.md). Gaussian policy
 with a learned state-free log-std, shared by all robots (``Actor``):
@@ -99,7 +99,7 @@ depends on it); each is built by ``swarm.topologies``."""
 class PPOConfig:
     out: str = "runs/ppo"
     seed: int = 0
-    init_policy: str | None = "models/gnn_default.npz"  # BC policy file to start from (None: fresh GNN)
+    init_policy: str | None = "models/gnn_graph_filter.npz"  # BC policy file to start from (None: fresh GNN)
     hops: int = 8  # fresh GNN only
     device: str = "cpu"  # "cpu", "cuda" or "auto"
     threads: int = 1  # torch intra-op threads on the CPU
