@@ -6,7 +6,8 @@ Reports the whole engine tick (forward + unicycle step) and the forward alone, p
 per CPU second of this process (the cores are shared: the load average is recorded beside; with
 one numba thread, robot-steps per CPU second is what one idle core would do), plus the limit they
 imply: floating-point operations per robot-step of the forward (counted from the architecture)
-times the robot-steps per CPU second gives the FLOP/s the kernel sustains on one core. Writes bench/results/gnn.json.
+times the robot-steps per CPU second gives the FLOP/s the kernel sustains on one core.
+Writes bench/results/gnn.json.
 
     python bench/bench_gnn.py [--model models/gnn_default.npz] [--ticks 200] [--repeats 5] [--threads 1]
 """
@@ -122,9 +123,11 @@ def main() -> None:
             row = measure(policy, batch, count, graph, args.ticks, args.repeats)
             results.append(row)
             print(
-                f"{graph:7s} B={batch:5d} N={count:4d}: engine {row['engine_robot_steps_per_s_best']:.3g} "
+                f"{graph:7s} B={batch:5d} N={count:4d}: "
+                f"engine {row['engine_robot_steps_per_s_best']:.3g} "
                 f"({row['engine_robot_steps_per_cpu_s_best']:.3g} per CPU s), forward "
-                f"{row['forward_robot_steps_per_s_best']:.3g} ({row['forward_robot_steps_per_cpu_s_best']:.3g} "
+                f"{row['forward_robot_steps_per_s_best']:.3g} "
+                f"({row['forward_robot_steps_per_cpu_s_best']:.3g} "
                 f"per CPU s) robot-steps/s; {row['forward_flops_per_robot_step']['total_unchanged']:.0f} "
                 f"FLOP/robot-step, {row['forward_gflops_per_cpu_s_unchanged_memory']} GFLOP per CPU s"
             )

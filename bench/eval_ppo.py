@@ -249,7 +249,9 @@ def main() -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("model", help="the PPO policy file")
-    parser.add_argument("--bc", default="models/gnn_graph_filter.npz", help="the BC policy file it started from")
+    parser.add_argument(
+        "--bc", default="models/gnn_graph_filter.npz", help="the BC policy file it started from"
+    )
     parser.add_argument("--topologies", nargs="+", default=["cycle", "line", "random", "complete"])
     parser.add_argument("--sizes", nargs="+", type=int, default=[20])
     parser.add_argument("--starts", type=int, default=1000)
