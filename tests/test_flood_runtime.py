@@ -8,9 +8,10 @@ its neighbours' messages of the last tick).
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import torch
-from test_mec_runtime import logged
 from test_runtime import Run, agent_records, scenario_file
 
 from swarm.links import Links
@@ -18,6 +19,12 @@ from swarm.models.flood import FloodGNN
 from swarm.policy import load_policy
 from swarm.robot import RobotParams, controlled_point, point_velocity_to_wheels
 from swarm.scenario import load_scenario
+
+
+def logged(out):
+    """The server's logged poses ``(T, N, 3)`` and the wheel speeds applied at each tick."""
+    lines = [json.loads(line) for line in (out / "trajectory.jsonl").read_text().splitlines()]
+    return np.array([line["poses"] for line in lines]), np.array([line["wheels"] for line in lines[:-1]])
 
 
 def test_flood_gnn_agents_are_torch_free_and_compute_the_batched_forward(tmp_path):
