@@ -38,6 +38,39 @@ def read(paths: list[str], controller: str | None = None) -> dict[tuple, dict]:
     return rows
 
 
+def read_cells(directories: list[str], controller: str) -> dict[tuple, dict]:
+    """Rows like ``sweep.csv``'s from the per-cell caches ``DIR/cells/*.npz`` (also of sweeps still
+    running or stopped: every finished cell is there)."""
+    import json
+
+    import numpy as np
+
+    rows = {}
+    for directory in directories:
+        for path in sorted(Path(directory).glob("cells/*.npz")):
+            name = path.stem.split("-")[0]
+            topology, count, kind = (
+                name.rsplit("_", 2)[0],
+                int(name.rsplit("_", 2)[1]),
+                name.rsplit("_", 2)[2],
+            )
+            if not name.endswith(controller) or "_first" in path.stem:
+                continue
+            with np.load(path) as cell:
+                times, lower = cell["times_s"], cell["lower_bound_s"]
+                loss = float(json.loads(str(cell["settings"])).get("packet_loss", 0.0))
+            ratio = times[lower > 0] / lower[lower > 0]
+            ratio = ratio[~np.isnan(ratio)]
+            rows[topology, count, loss, controller] = {
+                "starts": len(times),
+                "success_rate": float(np.mean(~np.isnan(times))),
+                "median_ratio_to_lower_bound": float(np.median(ratio)) if len(ratio) else None,
+                "p95_ratio_to_lower_bound": float(np.percentile(ratio, 95)) if len(ratio) else None,
+            }
+            del kind
+    return rows
+
+
 def number(row: dict | None, key: str) -> float | None:
     if row is None or row.get(key) in (None, ""):
         return None
@@ -52,13 +85,15 @@ def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--new", nargs="+", required=True, help="sweep.csv files with the new model (gnn)")
+    parser.add_argument("--new", nargs="*", default=[], help="sweep.csv files with the new model (gnn)")
+    parser.add_argument("--new-cells", nargs="*", default=[], help="sweep output directories (their cells/)")
     parser.add_argument("--old", nargs="*", default=[], help="csv files with the old model (gnn)")
     parser.add_argument("--baselines", nargs="*", default=[], help="csv files with mec_flood")
     parser.add_argument("--model", default="the new model")
     parser.add_argument("--out", required=True)
     args = parser.parse_args()
-    new, old = read(args.new, "gnn"), read(args.old, "gnn")
+    new = {**read_cells(args.new_cells, "gnn"), **read(args.new, "gnn")}
+    old = read(args.old, "gnn")
     base = read(args.baselines, "mec_flood")
     keys = sorted(new, key=lambda k: (k[2], ORDER.index(k[0]) if k[0] in ORDER else 99, k[1]))
     lines = [

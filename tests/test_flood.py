@@ -197,12 +197,10 @@ def test_policy_runs_without_torch_or_numba(tmp_path):
         import sys
         import numpy as np
         import swarm.policy, swarm.onboard
-        controller = swarm.onboard.robot_controller(
-            "gnn", swarm.robot.RobotParams(), 1.0, open({str(path)!r}, "rb").read(), 4
-        )
+        controller = swarm.policy.load_policy(open({str(path)!r}, "rb").read(), swarm.robot.RobotParams(), 4)
         heard = np.zeros((0, controller.message_dim))
         for tick in range(3):
-            u, message = controller.act_one(np.array([0.1, 0.2, 0.3]), heard, np.ones(len(heard)))
+            u, message = controller.act_one(np.array([0.1, 0.2, 0.3]), heard)
             assert message.shape == (controller.message_dim,)
             heard = np.stack([message, message + 0.5])
         assert np.abs(u).max() > 0
