@@ -10,7 +10,8 @@ $S --topologies complete cycle line --sizes 6 12 24 50 100 --out $OUT/eval_a
 $S --topologies star random disk --sizes 6 12 24 50 100 --out $OUT/eval_b
 $S --topologies line_sorted --sizes 100 --out $OUT/eval_sorted
 $S --topologies cycle line --sizes 24 100 --packet-loss 0.5 --out $OUT/eval_loss50
+# the table reads the per-cell results (cells/), so it can also be made while sweeps still run
 python bench/flood_table.py --model $MODEL \
-    --new $OUT/eval_a/sweep.csv $OUT/eval_b/sweep.csv $OUT/eval_sorted/sweep.csv $OUT/eval_loss50/sweep.csv \
+    --new-cells $OUT/eval_a $OUT/eval_b $OUT/eval_sorted $OUT/eval_loss50 \
     --old docs/results/gnn_eval/default/evaluation.csv docs/results/gnn_eval/disk/evaluation.csv \
-    --baselines docs/results/baselines/sweep.csv --out $OUT/comparison.md
+    --out $OUT/comparison.md
