@@ -11,6 +11,7 @@ Threads are used for large batches only (``swarm.kernels.PARALLEL_MIN_ROBOTS``).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numba
 import numpy as np
@@ -236,8 +237,9 @@ def _flood_tick(
             u_world[env, i, 1] = s * ux + c * uy
 
 
-_serial = numba.njit(cache=True)(_flood_tick)
-_parallel = numba.njit(cache=True, parallel=True)(_flood_tick)
+# Typed as plain callables: numba's Dispatcher declares a narrower __call__ than the compiled kernel.
+_serial: Callable[..., None] = numba.njit(cache=True)(_flood_tick)
+_parallel: Callable[..., None] = numba.njit(cache=True, parallel=True)(_flood_tick)
 
 
 def packed(policy) -> tuple:

@@ -187,7 +187,7 @@ class Policy(FeatureController):
     @classmethod
     def load(
         cls, source: str | Path | bytes, robot: RobotParams | None = None, robot_count: int = 0
-    ) -> Policy:
+    ) -> Policy | FloodPolicy:
         """From a file path or from the file's bytes (an agent receives the file over the network)."""
         try:
             with np.load(

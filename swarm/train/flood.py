@@ -38,6 +38,7 @@ import logging
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -212,7 +213,9 @@ def run_episode(
     """One episode batch at N = ``count``: every graph kind's group side by side (``envs`` each),
     and per environment the message-drop probability of the replay (drawn from ``loss_p``)."""
     groups = [run_group(config, graph, count, learner, expert_share, rng) for graph in config.graphs]
-    episode = {key: np.concatenate([group[key] for group in groups], axis=1) for key in groups[0]}
+    episode: dict[str, Any] = {
+        key: np.concatenate([group[key] for group in groups], axis=1) for key in groups[0]
+    }
     episode["loss_p"] = rng.choice(np.asarray(config.loss_p, dtype=float), size=episode["poses"].shape[1])
     episode["count"] = count
     return episode
@@ -235,7 +238,8 @@ def argmax_positions(episode: dict, projections: np.ndarray, rng: np.random.Gene
     drop = episode["loss_p"][None, :, None, None]
     kept = heard & (rng.random(heard.shape) >= drop)
     out = np.empty((ticks, batch, count, len(signed), 2), dtype=np.float32)
-    values = positions = None
+    values: np.ndarray | None = None
+    positions: np.ndarray | None = None
     rows = np.arange(batch)[:, None, None]
     for tick in range(ticks):
         axle = poses[tick, :, :, :2]
@@ -244,6 +248,7 @@ def argmax_positions(episode: dict, projections: np.ndarray, rng: np.random.Gene
         if values is None:
             new_values, new_positions = own, own_positions.copy()
         else:
+            assert positions is not None
             take = own > values
             new_values = np.where(take, own, values)
             new_positions = np.where(take[..., None], own_positions, positions)
@@ -362,7 +367,8 @@ def train(config: FloodConfig) -> Path:
     robot = RobotParams(v_max_mps=config.v_max_mps)
     model = build(config)
     episodes: list[dict] = []
-    rows, best = [], (np.inf, None)
+    rows: list[dict] = []
+    best: tuple[float, int] = (np.inf, 0)
     started = time.perf_counter()
     for iteration in range(config.iterations + 1):
         share = 1.0 if iteration == 0 else config.beta0 * config.beta_decay ** (iteration - 1)
@@ -378,9 +384,8 @@ def train(config: FloodConfig) -> Path:
                 data = rows_of(episodes, model, rng)
             loss = fit_epoch(model, data, robot, config, optimizer, generator, rng)
             elapsed = time.perf_counter() - started
-            log.info("iteration %d epoch %d loss %.5f (%.0f s)", iteration, epoch, loss, elapsed)
             if config.progress:
-                print(f"iteration {iteration} epoch {epoch} loss {loss:.5f} ({elapsed:.0f} s)", flush=True)
+                log.info("iteration %d epoch %d loss %.5f (%.0f s)", iteration, epoch, loss, elapsed)
         policy_path = out / f"iter_{iteration}" / "policy.npz"
         torch.save(
             {"model": model.state_dict(), "model_config": model.config()},
@@ -400,7 +405,7 @@ def train(config: FloodConfig) -> Path:
         }
         rows.append(row)
         if config.progress:
-            print(json.dumps(row), flush=True)
+            log.info("%s", json.dumps(row))
         with open(out / "log.csv", "w", newline="") as file:
             writer = csv.DictWriter(file, fieldnames=list(rows[0]))
             writer.writeheader()
