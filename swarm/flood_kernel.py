@@ -16,7 +16,7 @@ from collections.abc import Callable
 import numba
 import numpy as np
 
-from swarm import kernels
+from swarm import flood_readout, kernels
 
 RELU, TANH = 0, 1
 CHUNKS = 64  # environments are split into this many chunks (threads), each with its own scratch
@@ -273,7 +273,6 @@ def packed(policy) -> tuple:
 
 def act(policy, poses: np.ndarray, inbox: np.ndarray, heard) -> tuple[np.ndarray, np.ndarray]:
     """``FloodPolicy.act``: ``(u_world (B, N, 2), outbox (B, N, 2P + 1))``."""
-    from swarm.policy import FLOOD_HESSIAN_EPS, FLOOD_MAX_STEP, FLOOD_RHO_EPS_M, FLOOD_TAU_START
 
     batch, count = poses.shape[:2]
     if inbox.ndim != 3 or inbox.shape[-1] != policy.message_dim or inbox.shape[:2] < (batch, count):
@@ -288,10 +287,10 @@ def act(policy, poses: np.ndarray, inbox: np.ndarray, heard) -> tuple[np.ndarray
         np.ascontiguousarray(inbox, dtype=np.float64),
         np.ascontiguousarray(heard.index),
         *packed(policy),
-        FLOOD_HESSIAN_EPS,
-        FLOOD_MAX_STEP,
-        FLOOD_TAU_START,
-        FLOOD_RHO_EPS_M,
+        flood_readout.HESSIAN_EPS,
+        flood_readout.MAX_STEP,
+        flood_readout.TAU_START,
+        flood_readout.RHO_EPS_M,
         u_world,
         outbox,
     )

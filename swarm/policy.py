@@ -37,6 +37,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from swarm import flood_readout
 from swarm.features import FeatureSpec, batched_features, messages, robot_features, saturate_local_velocity
 from swarm.robot import RobotParams, controlled_point, rotate
 
@@ -49,10 +50,6 @@ METADATA_KEY = "__metadata__"
 MIRROR = np.array([1.0, -1.0])  # reflection about the robot's heading axis, in its own frame
 COSINE_EPS_M = 1e-3  # as swarm.models.gnn
 FLOOD_KIND = "gnn_flood"
-FLOOD_HESSIAN_EPS = 1e-4  # as swarm.models.flood
-FLOOD_MAX_STEP = 0.5
-FLOOD_TAU_START = 0.2
-FLOOD_RHO_EPS_M = 1e-6
 
 _ACTIVATIONS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
     "relu": lambda x: np.maximum(x, 0.0),
@@ -400,20 +397,19 @@ class FloodPolicy:
         cy = (gram[0, 0] * by - gram[0, 1] * bx) / det
         steps = self.model["newton_steps"]
         for step in range(steps):
-            tau = width * (
-                FLOOD_TAU_START * (self._tau_share / FLOOD_TAU_START) ** (step / max(steps - 1, 1))
-            )
+            tau_start = flood_readout.TAU_START
+            tau = width * (tau_start * (self._tau_share / tau_start) ** (step / max(steps - 1, 1)))
             slack = (support - cx[..., None] * ux - cy[..., None] * uy) / tau[..., None]
             weight = np.exp(slack - slack.max(axis=-1, keepdims=True))
             weight /= weight.sum(axis=-1, keepdims=True)
             gx, gy = (weight * ux).sum(-1), (weight * uy).sum(-1)
-            hxx = ((weight * ux * ux).sum(-1) - gx * gx + FLOOD_HESSIAN_EPS) / tau
+            hxx = ((weight * ux * ux).sum(-1) - gx * gx + flood_readout.HESSIAN_EPS) / tau
             hxy = ((weight * ux * uy).sum(-1) - gx * gy) / tau
-            hyy = ((weight * uy * uy).sum(-1) - gy * gy + FLOOD_HESSIAN_EPS) / tau
+            hyy = ((weight * uy * uy).sum(-1) - gy * gy + flood_readout.HESSIAN_EPS) / tau
             det = hxx * hyy - hxy * hxy
             dx, dy = (hyy * gx - hxy * gy) / det, (hxx * gy - hxy * gx) / det
             length = np.sqrt(dx * dx + dy * dy + 1e-30)
-            damp = np.minimum(FLOOD_MAX_STEP * width / length, 1.0)
+            damp = np.minimum(flood_readout.MAX_STEP * width / length, 1.0)
             cx, cy = cx + damp * dx, cy + damp * dy
         return np.stack([cx, cy], axis=-1)
 
@@ -422,7 +418,7 @@ class FloodPolicy:
         c, s = np.cos(poses[..., 2]), np.sin(poses[..., 2])
         dx, dy = target[..., 0] - poses[..., 0], target[..., 1] - poses[..., 1]
         rx, ry = c * dx + s * dy, -s * dx + c * dy
-        rho = np.sqrt(rx * rx + ry * ry + FLOOD_RHO_EPS_M**2)
+        rho = np.sqrt(rx * rx + ry * ry + flood_readout.RHO_EPS_M**2)
         features = np.stack([rx / rho, ry / rho, np.minimum(rho / self.model["rho_cap_m"], 1.0)], axis=-1)
         return self.output_scale_mps * _mlp(self._steer, features, self._steer_activation)
 

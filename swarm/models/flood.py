@@ -56,15 +56,12 @@ from pathlib import Path
 import torch
 from torch import nn
 
+from swarm.flood_readout import HESSIAN_EPS, MAX_STEP, RHO_EPS_M, TAU_START
 from swarm.models.base import linears, saturate
 from swarm.policy import save_policy
 from swarm.robot import RobotParams
 
 KIND = "gnn_flood"
-HESSIAN_EPS = 1e-4  # regularises the Newton step's 2 x 2 solve (relative: the Hessian is O(1 / tau))
-MAX_STEP = 0.5  # a Newton step moves the centre by at most this share of the swarm's width
-TAU_START = 0.2  # temperature of the first Newton step, share of the width
-RHO_EPS_M = 1e-6  # regularises the target direction of a robot on its target
 
 
 def tau_share_at(step: int, steps: int, final_share):
