@@ -41,8 +41,11 @@ subscribed to and received in ``<log-dir>/agent_<i>.json`` (once it is ready, an
 
 from __future__ import annotations
 
+import collections
+import itertools
 import json
 import os
+import select
 import signal
 import socket
 import sys
@@ -61,6 +64,7 @@ from swarm.controller_kinds import robot_controller
 from swarm.faults import DROPPED, HEARD, LOST, LinkFaults, message_max_age_ticks, select_message
 from swarm.onboard import wheels_one
 from swarm.robot import RobotParams
+from swarm.ticks import ACCEPT, OLD, PoseWindow, step_s_of
 
 SERVER_LOST_S = 5.0
 """How long the sim's token may be gone before the agent takes the sim as gone (until its config
@@ -75,11 +79,12 @@ INBOX_TICKS = 8
 """Messages kept per neighbour (by tick), at least: a fast neighbour's tick-k message must not hide
 its k-1 (more under a delay fault or a longer message age)."""
 
-POSE_RING = 4
-"""Poses buffered by the pose channel; the newest is used, older ones count as skipped."""
+POSE_RING = 16
+"""Poses buffered by the pose inlet; the newest is used, older ones count as skipped, and what a
+full inlet pushes out counts as overflow."""
 
 MESSAGE_RING = 2 * INBOX_TICKS
-"""Samples buffered per neighbour channel (a ring: a slow agent drops, never stalls its session)."""
+"""Samples buffered per neighbour inlet (a ring: a slow agent drops, never stalls its session)."""
 
 LIVELINESS_RING = 16
 
@@ -94,6 +99,45 @@ EXIT_DONE, EXIT_FAILED = 0, 1
 
 class _Wake(BaseException):
     """Raised by a signal handler into the main thread's blocking ``recv`` (stop, sim gone)."""
+
+
+class Inlet:
+    """The payloads of one subscription, appended by a callback in Zenoh's own receiving thread
+    (``indirect=False``: no Python thread hand-off) to a bounded deque that the main thread reads.
+    A full deque drops its oldest payload; ``overflow`` counts them (arrivals - taken - queued).
+    ``wake_fd``: the write end of a pipe, written once per arrival, for a reader that blocks."""
+
+    __slots__ = ("queue", "arrivals", "taken", "wake_fd", "_reads")
+
+    def __init__(self, capacity: int, wake_fd: int | None = None):
+        self.queue: collections.deque[bytes] = collections.deque(maxlen=capacity)
+        self.arrivals = itertools.count()  # next() is atomic: Zenoh may call from several threads
+        self.taken = 0
+        self.wake_fd = wake_fd
+        self._reads = 0
+
+    def __call__(self, sample: zenoh.Sample) -> None:
+        self.queue.append(sample.payload.to_bytes())
+        next(self.arrivals)
+        if self.wake_fd is not None:
+            try:
+                os.write(self.wake_fd, b"\0")
+            except OSError:  # the pipe is full (the reader will find the queue full too) or closed
+                pass
+
+    def take(self) -> bytes | None:
+        try:
+            payload = self.queue.popleft()
+        except IndexError:
+            return None
+        self.taken += 1
+        return payload
+
+    def overflow(self) -> int:
+        """Payloads the full deque dropped so far (main thread only)."""
+        arrived = next(self.arrivals) - self._reads  # reading the count advances it: keep track
+        self._reads += 1
+        return max(0, arrived - self.taken - len(self.queue))
 
 
 @dataclass
@@ -113,10 +157,12 @@ class Counters:
     poses_received: int = 0
     poses_invalid: int = 0
     poses_old: int = 0  # tick not newer than the newest pose seen: a replay or reordered
+    # poses dated beyond the agent's window (swarm.ticks) are counted by its PoseWindow
     poses_skipped: int = 0
     messages_received: int = 0
     messages_invalid: int = 0
     messages_old: int = 0  # tick not newer than the newest accepted from that neighbour
+    messages_future: int = 0  # tick beyond the agent's window (swarm.ticks): forged or dated ahead
     messages_lost: int = 0
     messages_dropped_by_fault: int = 0
     messages_lost_by_fault: int = 0
@@ -155,7 +201,12 @@ class RobotAgent:
         self._blocking = False  # the main thread sits in a recv that a signal may interrupt
         self._main_thread: int | None = None  # set when signals can interrupt the main thread
         self._inbox: dict[int, dict[int, Sequence[float]]] = {}  # neighbour -> tick -> message
-        self._msg_subs: dict[int, zenoh.Subscriber] = {}
+        self._msg_inlets: dict[int, Inlet] = {}
+        self._pose_inlet: Inlet | None = None
+        self._wake_r, self._wake_w = os.pipe()
+        os.set_blocking(self._wake_r, False)
+        os.set_blocking(self._wake_w, False)
+        self._window = PoseWindow(1.0)
         self._newest_message_tick: dict[int, int] = {}  # neighbour -> tick of its newest message accepted
         self._alive_subs: dict[int, zenoh.Subscriber] = {}
         self._neighbours_alive: set[int] = set()
@@ -235,25 +286,35 @@ class RobotAgent:
     def _ended(self) -> bool:
         return self._stop or self._sim_alive is False or self._sim_unseen
 
-    def _recv(self, subscriber: zenoh.Subscriber) -> zenoh.Sample | None:
-        """The next sample of a channel subscriber; None once stopped or the sim is gone."""
+    def _recv(self, inlet: Inlet) -> bytes | None:
+        """The next payload of the pose inlet; None once stopped or the sim is gone."""
         if self._main_thread is None:  # no signals here: poll
             while not self._ended():
-                sample = subscriber.try_recv()
-                if sample is not None:
-                    return sample
+                payload = inlet.take()
+                if payload is not None:
+                    return payload
                 time.sleep(0.001)
             return None
-        try:
+        while True:
+            payload = inlet.take()
+            if payload is not None:
+                return payload
             try:
-                self._blocking = True  # before the checks: a signal from here on interrupts recv
-                if self._ended():
-                    return None
-                return subscriber.recv()
-            finally:
-                self._blocking = False
-        except _Wake:
-            return None
+                try:
+                    self._blocking = True  # before the checks: a signal from here on interrupts select
+                    if self._ended():
+                        return None
+                    if inlet.queue:
+                        continue
+                    select.select([self._wake_r], [], [])
+                finally:
+                    self._blocking = False
+            except _Wake:
+                return None
+            try:
+                os.read(self._wake_r, 65536)  # one byte per arrival: drop what is there
+            except BlockingIOError:
+                pass
 
     # ------------------------------------------------------------------ channels (main thread)
     def _drain_liveliness(self) -> None:
@@ -269,16 +330,20 @@ class RobotAgent:
 
     def _drain_messages(self) -> None:
         counters, newest = self.counters, self._newest_message_tick
-        for j, subscriber in self._msg_subs.items():
+        limit = self._window.limit(time.perf_counter())  # no neighbour is ahead of the sim (swarm.ticks)
+        for j, inlet in self._msg_inlets.items():
             box = self._inbox[j]
-            while (sample := subscriber.try_recv()) is not None:
-                decoded = wire.decode_message_values(sample.payload.to_bytes(), self._dim)
+            while (payload := inlet.take()) is not None:
+                decoded = wire.decode_message_values(payload, self._dim)
                 if decoded is None:
                     counters.messages_invalid += 1
                     continue
                 tick, values = decoded
                 if tick <= newest.get(j, -1):
                     counters.messages_old += 1
+                    continue
+                if tick > limit:
+                    counters.messages_future += 1
                     continue
                 newest[j] = tick
                 counters.messages_received += 1
@@ -291,23 +356,26 @@ class RobotAgent:
                 if len(box) > self._inbox_ticks:
                     del box[min(box)]
 
-    def _next_pose(self, subscriber: zenoh.Subscriber) -> wire.Pose | None:
-        """Block for a pose newer than the last one used (the newest if several are queued)."""
-        counters, newest = self.counters, None
+    def _next_pose(self, inlet: Inlet) -> wire.Pose | None:
+        """Block for a pose newer than the last one used and inside the agent's window (the newest
+        if several are queued; one dated beyond it only once a second pose confirms it: swarm.ticks)."""
+        counters, window, newest = self.counters, self._window, None
         while newest is None:
-            sample = self._recv(subscriber)
-            while sample is not None:
-                pose = wire.decode_pose(sample.payload.to_bytes())
+            payload = self._recv(inlet)
+            while payload is not None:
+                pose = wire.decode_pose(payload)
                 if pose is None:
                     counters.poses_invalid += 1
-                elif pose.tick <= (self._last_tick if newest is None else newest.tick):
-                    counters.poses_old += 1
                 else:
-                    counters.poses_received += 1
-                    if newest is not None:
-                        counters.poses_skipped += 1  # a newer pose came before we used this one
-                    newest = pose
-                sample = subscriber.try_recv()
+                    verdict = window.offer(pose.tick, time.perf_counter())
+                    if verdict == ACCEPT:
+                        counters.poses_received += 1
+                        if newest is not None:
+                            counters.poses_skipped += 1  # a newer pose came before we used this one
+                        newest = pose
+                    elif verdict == OLD:
+                        counters.poses_old += 1
+                payload = inlet.take()
             if self._ended():
                 return None
         return newest
@@ -465,6 +533,7 @@ class RobotAgent:
             sim_sub.undeclare()
             return EXIT_FAILED
         self._keep_ticks = self._faults.max_delay_ticks + self._max_age
+        self._window = PoseWindow(step_s_of({"control_period_s": config.control_period_s, **sim_spec}))
         self._inbox_ticks = max(INBOX_TICKS, self._keep_ticks + 2)
         record.update(
             controller=config.controller,
@@ -472,15 +541,15 @@ class RobotAgent:
             neighbours=list(config.neighbours),
             config_s=round(time.perf_counter() - self._started_s, 4),
         )
-        ring = zenoh.handlers.RingChannel
+        ring, inline = zenoh.handlers.RingChannel, zenoh.handlers.Callback
         entities: list[Any] = [sim_sub]
-        pose_sub = session.declare_subscriber(keys.pose(self.robot), ring(POSE_RING))
-        entities.append(pose_sub)
+        pose_inlet = self._pose_inlet = Inlet(POSE_RING, self._wake_w)
+        entities.append(session.declare_subscriber(keys.pose(self.robot), inline(pose_inlet, indirect=False)))
         record["subscriptions"].append(keys.pose(self.robot))
         for j in config.neighbours:
             self._inbox[j] = {}
-            self._msg_subs[j] = session.declare_subscriber(keys.msg(j), ring(MESSAGE_RING))
-            entities.append(self._msg_subs[j])
+            self._msg_inlets[j] = inlet = Inlet(MESSAGE_RING)
+            entities.append(session.declare_subscriber(keys.msg(j), inline(inlet, indirect=False)))
             record["subscriptions"].append(keys.msg(j))
         for j in config.neighbours:
             self._alive_subs[j] = session.liveliness().declare_subscriber(
@@ -503,14 +572,14 @@ class RobotAgent:
         watchdog.daemon = True
         watchdog.start()
         try:
-            return self._loop(controller, params, config, pose_sub, msg_pub, cmd_pub)
+            return self._loop(controller, params, config, pose_inlet, msg_pub, cmd_pub)
         finally:
             watchdog.cancel()
             for entity in reversed(entities):
                 entity.undeclare()
 
     def _loop(
-        self, controller, params: RobotParams, config: wire.AgentConfig, pose_sub, msg_pub, cmd_pub
+        self, controller, params: RobotParams, config: wire.AgentConfig, pose_inlet: Inlet, msg_pub, cmd_pub
     ) -> int:
         lockstep = self._lockstep
         neighbours = list(config.neighbours)
@@ -520,7 +589,7 @@ class RobotAgent:
         faults, me, max_age = self._faults, self.robot, self._max_age
         no_faults = faults.empty
         while True:
-            pose = self._next_pose(pose_sub)
+            pose = self._next_pose(pose_inlet)
             if pose is None:
                 self.record["exit_reason"] = "stopped" if self._stop else "sim gone"
                 return EXIT_DONE
@@ -572,21 +641,29 @@ class RobotAgent:
             counters.commands_sent += 1
 
     def _write_record(self) -> None:
-        counters = self.counters
+        counters, window = self.counters, self._window
+        pose_inlet = self._pose_inlet
         self.record.update(
             ticks=counters.ticks,
             last_tick=self._last_tick,
             commands_sent=counters.commands_sent,
             poses={
-                "received": counters.poses_received,
+                "received": counters.poses_received + window.confirmed,
                 "invalid": counters.poses_invalid,
                 "old": counters.poses_old,
-                "skipped": counters.poses_skipped,
+                "future": window.future + (window.candidate is not None),  # a pending candidate too
+                "overflow": pose_inlet.overflow() if pose_inlet is not None else 0,
+                "unread": len(pose_inlet.queue) if pose_inlet is not None else 0,  # came after the last tick
+                "skipped": counters.poses_skipped + window.confirmed,
+                "jumps": window.confirmed,  # beyond the window, confirmed by the next pose: followed
             },
             messages={
                 "received": counters.messages_received,
                 "invalid": counters.messages_invalid,
                 "old": counters.messages_old,
+                "future": counters.messages_future,
+                "overflow": sum(inlet.overflow() for inlet in self._msg_inlets.values()),
+                "unread": sum(len(inlet.queue) for inlet in self._msg_inlets.values()),
                 "lost": counters.messages_lost,
                 "late": counters.messages_late,
                 "dropped_by_fault": counters.messages_dropped_by_fault,

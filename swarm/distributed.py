@@ -479,23 +479,23 @@ def runtime_summary(
 
 
 def rejected_counts(stats: dict, records: dict[int, dict]) -> dict:
-    """Samples dropped on receipt, per stream: ``invalid`` (did not decode: swarm.wire) and ``old``
-    (tick not newer than the newest accepted from that sender); and exceptions caught in callbacks."""
+    """Samples dropped on receipt, per reason and stream: ``invalid`` (did not decode: swarm.wire),
+    ``old`` (tick not newer than the newest accepted from that sender), ``future`` (tick beyond the
+    receiver's window: swarm.ticks), ``overflow`` (pushed out of a full receive buffer before it was
+    read; the server's commands go through a callback: none); and exceptions caught in callbacks."""
 
     def total(stream: str, kind: str) -> int:
         return sum(int(record.get(stream, {}).get(kind, 0)) for record in records.values())
 
-    return {
-        "invalid": {
-            "poses": total("poses", "invalid"),
-            "messages": total("messages", "invalid"),
-            "commands": int(stats.get("invalid_commands", 0)),
-        },
-        "old": {
-            "poses": total("poses", "old"),
-            "messages": total("messages", "old"),
-            "commands": int(stats.get("old_commands", 0)),
-        },
-        "callback_errors": int(stats.get("callback_errors", 0))
-        + sum(int(record.get("callback_errors", 0)) for record in records.values()),
+    counts: dict = {
+        reason: {
+            "poses": total("poses", reason),
+            "messages": total("messages", reason),
+            "commands": int(stats.get(f"{reason}_commands", 0)),
+        }
+        for reason in ("invalid", "old", "future", "overflow")
     }
+    counts["callback_errors"] = int(stats.get("callback_errors", 0)) + sum(
+        int(record.get("callback_errors", 0)) for record in records.values()
+    )
+    return counts

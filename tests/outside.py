@@ -1,0 +1,169 @@
+"""An outside Zenoh client that imports none of the project's code.
+
+It knows only what ``docs/distributed-runtime.md`` documents: the key space ``swarm/<run>/...`` and the
+msgpack payloads (``"v": 1``; pose ``k t x y th``, command ``k l r``, message ``k m`` with ``m``
+little-endian float64 bytes). Tests and ``bench/chaos.py`` use it to send forged, replayed and
+malformed samples from a process of their own, so that what the receivers count is checked against
+what an independent sender did, not against the project's own decoders.
+
+As a script: ``python tests/outside.py forge --endpoint E --run R --at-tick T --ahead A --pose 1
+--msg 2 --cmd 3 [--credentials FILE] --out sent.json`` waits for robot ``--watch``'s pose of tick T,
+then puts, once each, a genuine sample it received (robot 1's pose, agent 2's message, robot 3's
+command) with its tick moved ``A`` ticks ahead, and writes what it sent.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import struct
+import sys
+import time
+from pathlib import Path
+
+import msgpack
+import zenoh
+
+SCHEMA_VERSION = 1
+
+
+def pose_key(run: str, robot: int) -> str:
+    return f"swarm/{run}/robot/{robot}/pose"
+
+
+def cmd_key(run: str, robot: int) -> str:
+    return f"swarm/{run}/robot/{robot}/cmd"
+
+
+def msg_key(run: str, robot: int) -> str:
+    return f"swarm/{run}/agent/{robot}/msg"
+
+
+def pack(body: dict) -> bytes:
+    return msgpack.packb(body, use_bin_type=True)
+
+
+def pose(tick: int, x: float, y: float, theta: float) -> bytes:
+    return pack({"v": SCHEMA_VERSION, "k": tick, "t": tick * 0.05, "x": x, "y": y, "th": theta})
+
+
+def command(tick: int, left: float, right: float) -> bytes:
+    return pack({"v": SCHEMA_VERSION, "k": tick, "l": left, "r": right})
+
+
+def message(tick: int, values: list[float]) -> bytes:
+    return pack({"v": SCHEMA_VERSION, "k": tick, "m": struct.pack(f"<{len(values)}d", *values)})
+
+
+def tick_of(payload: bytes) -> int | None:
+    try:
+        body = msgpack.unpackb(payload, raw=False)
+        return int(body["k"])
+    except Exception:
+        return None
+
+
+def moved(payload: bytes, ahead: int) -> bytes:
+    """The same sample with its tick ``ahead`` ticks later."""
+    body = msgpack.unpackb(payload, raw=False)
+    body["k"] = int(body["k"]) + ahead
+    return pack(body)
+
+
+def open_session(endpoint: str, credentials: str | None = None, deadline_s: float = 60.0) -> zenoh.Session:
+    """A client session to ``endpoint``, retried until ``deadline_s`` from now (a loaded machine may
+    refuse a connection for a moment: "Unable to connect")."""
+    config = zenoh.Config()
+    config.insert_json5("mode", '"client"')
+    config.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    config.insert_json5("scouting/multicast/enabled", "false")
+    if credentials:
+        user, password = Path(credentials).read_text().strip().split(":", 1)
+        config.insert_json5("transport/auth/usrpwd", json.dumps({"user": user, "password": password}))
+    give_up_s, delay_s = time.monotonic() + deadline_s, 0.05
+    while True:
+        try:
+            return zenoh.open(config)
+        except zenoh.ZError:
+            if time.monotonic() + delay_s > give_up_s:
+                raise
+            time.sleep(delay_s)
+            delay_s = min(2 * delay_s, 1.0)
+
+
+def latest(subscriber) -> bytes | None:
+    payload = None
+    while (sample := subscriber.try_recv()) is not None:
+        payload = sample.payload.to_bytes()
+    return payload
+
+
+def forge(args: argparse.Namespace) -> dict:
+    """Wait for tick ``at_tick`` on robot ``watch``'s pose, then put the forged samples once each."""
+    run, ahead = args.run, args.ahead
+    session = open_session(args.endpoint, args.credentials)
+    ring = zenoh.handlers.RingChannel
+    watch = session.declare_subscriber(pose_key(run, args.watch), ring(4))
+    sources = {}
+    if args.pose is not None:
+        sources["pose"] = (pose_key(run, args.pose), session.declare_subscriber(pose_key(run, args.pose), ring(4)))
+    if args.msg is not None:
+        sources["msg"] = (msg_key(run, args.msg), session.declare_subscriber(msg_key(run, args.msg), ring(4)))
+    if args.cmd is not None:
+        sources["cmd"] = (cmd_key(run, args.cmd), session.declare_subscriber(cmd_key(run, args.cmd), ring(4)))
+    sent: dict[str, dict] = {}
+    give_up_s = time.monotonic() + args.timeout
+    genuine: dict[str, bytes] = {}
+    while time.monotonic() < give_up_s and len(sent) < len(sources):
+        payload = latest(watch)
+        tick = tick_of(payload) if payload is not None else None
+        for kind, (_, subscriber) in sources.items():
+            newest = latest(subscriber)
+            if newest is not None:
+                genuine[kind] = newest
+        if tick is not None and tick >= args.at_tick:
+            for kind, (key, _) in sources.items():
+                if kind in sent:
+                    continue
+                if kind not in genuine:  # under access control the rogue may not see this key
+                    if not args.blind:
+                        continue
+                    genuine[kind] = {"pose": pose(tick, 0.0, 0.0, 0.0), "cmd": command(tick, 0.4, -0.4),
+                                     "msg": message(tick, [0.0] * args.dim)}[kind]
+                forged = moved(genuine[kind], ahead)
+                session.put(key, forged)
+                sent[kind] = {"key": key, "tick": tick_of(forged), "at_tick": tick}
+        time.sleep(0.001)
+    time.sleep(0.2)  # let the puts leave before the session closes
+    for _, subscriber in sources.values():
+        subscriber.undeclare()
+    watch.undeclare()
+    session.close()
+    return {"sent": sent}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    f = sub.add_parser("forge", help="put genuine samples with their tick moved ahead")
+    f.add_argument("--endpoint", required=True)
+    f.add_argument("--run", required=True)
+    f.add_argument("--watch", type=int, default=0, help="robot whose pose gives the current tick")
+    f.add_argument("--at-tick", type=int, default=20)
+    f.add_argument("--ahead", type=int, default=10**6)
+    f.add_argument("--pose", type=int)
+    f.add_argument("--msg", type=int)
+    f.add_argument("--cmd", type=int)
+    f.add_argument("--dim", type=int, default=2, help="message length when none was seen (--blind)")
+    f.add_argument("--blind", action="store_true", help="forge a key even if no genuine sample was seen")
+    f.add_argument("--credentials")
+    f.add_argument("--timeout", type=float, default=120.0)
+    f.add_argument("--out", type=Path, required=True)
+    args = parser.parse_args(argv)
+    report = forge(args)
+    args.out.write_text(json.dumps(report))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,116 @@
+"""Ticks that cannot be forged forward (swarm/ticks.py), checked from outside.
+
+A separate process that imports none of the project's code (``tests/outside.py``) joins a real lockstep
+run and puts, once each, a genuine sample it received with its tick moved 10^6 ahead: robot 5's pose,
+agent 2's message and robot 3's command. Each receiver must count it as *future* and go on: the
+trajectory (poses and applied wheels, every tick) must equal that of the same run without the forger.
+Under access control the forger holds robot 0's real credentials and forges what it may put: its own
+message and command keys (a pose on robot 0's key is refused by the router); the trajectory must still
+equal the clean run's (access control does not change a lockstep trajectory).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import yaml
+
+PROJECT_ROOT = Path(__file__).resolve().parent.parent
+OUTSIDE = PROJECT_ROOT / "tests" / "outside.py"
+sys.path.insert(0, str(PROJECT_ROOT / "tests"))
+
+from test_fuzz import wait_for_agent_record  # noqa: E402
+
+AHEAD = 10**6
+COUNT = 6
+DURATION_S = 5.0
+AT_TICK = 20
+
+
+def _scenario(tmp_path: Path, acl: bool) -> Path:
+    data = yaml.safe_load((PROJECT_ROOT / "scenarios/thesis/cycle-local_consensus.yaml").read_text())
+    data["robots"]["count"] = COUNT
+    data["sim"].update(duration=DURATION_S, acl=acl)
+    # A deadline no loaded machine misses: a tick then waits only for what never comes (a frozen
+    # robot, a cut link), and lockstep trajectories stay comparable.
+    data["sim"].update(deadline=3.0, neighbour_deadline=3.0)
+    path = tmp_path / f"forged-{'acl' if acl else 'open'}.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return path
+
+
+def _run(scenario: Path, out: Path, forge: list[str] | None, credentials: bool = False) -> tuple[dict, list]:
+    run = subprocess.Popen(
+        [sys.executable, "-m", "swarm.cli", "run", str(scenario), "--out", str(out), "--quiet"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=PROJECT_ROOT,
+    )
+    sent = None
+    try:
+        if forge is not None:
+            record = wait_for_agent_record(out, run)
+            sent_path = out.parent / f"{out.name}-sent.json"
+            command = [sys.executable, str(OUTSIDE), "forge", "--endpoint", record["connect"][0]]
+            command += ["--run", record["run"], "--at-tick", str(AT_TICK), "--ahead", str(AHEAD), *forge]
+            if credentials:
+                command += ["--credentials", str(out / "credentials" / "robot-0.cred"), "--blind"]
+            forger = subprocess.run(
+                [*command, "--out", str(sent_path)], capture_output=True, text=True, timeout=180
+            )
+            assert forger.returncode == 0, forger.stderr
+            sent = json.loads(sent_path.read_text())["sent"]
+        _, stderr = run.communicate(timeout=240)
+    finally:
+        if run.poll() is None:
+            run.kill()
+    assert run.returncode == 0, stderr
+    lines = [json.loads(line) for line in (out / "trajectory.jsonl").read_text().splitlines()]
+    return {"sent": sent, "metrics": json.loads((out / "metrics.json").read_text())}, lines
+
+
+def _records(out: Path) -> dict[int, dict]:
+    paths = (out / "logs").glob("agent_*.json")
+    return {int(path.stem.split("_")[1]): json.loads(path.read_text()) for path in paths}
+
+
+def _same_trajectory(a: list, b: list) -> None:
+    assert len(a) == len(b) == round(DURATION_S / 0.05) + 1
+    for line_a, line_b in zip(a, b, strict=True):
+        assert line_a["tick"] == line_b["tick"]
+        assert line_a["poses"] == line_b["poses"], line_a["tick"]
+        assert line_a.get("wheels") == line_b.get("wheels"), line_a["tick"]
+
+
+def test_forward_dated_samples_change_nothing_with_and_without_access_control(tmp_path):
+    _, clean = _run(_scenario(tmp_path, acl=False), tmp_path / "clean", None)
+
+    out = tmp_path / "forged"
+    result, forged = _run(_scenario(tmp_path, acl=False), out, ["--pose", "5", "--msg", "2", "--cmd", "3"])
+    assert sorted(result["sent"]) == ["cmd", "msg", "pose"], result["sent"]
+    assert all(item["tick"] >= AHEAD for item in result["sent"].values())
+    _same_trajectory(clean, forged)
+    records = _records(out)
+    stats = json.loads((out / "server_stats.json").read_text())
+    assert records[5]["poses"]["future"] == 1 and records[5]["poses"]["jumps"] == 0
+    assert [records[i]["messages"]["future"] for i in range(COUNT)] == [0, 1, 0, 1, 0, 0]  # 2's neighbours
+    assert stats["future_commands"] == 1 and stats["ticks_missed"] == 0
+    rejected = result["metrics"]["runtime"]["rejected"]
+    assert rejected["future"] == {"poses": 1, "messages": 2, "commands": 1}
+    for i, agent in records.items():  # nobody froze: every agent computed every tick
+        assert agent["ticks"] == len(clean) - 1 and agent["messages"]["lost"] == 0, (i, agent)
+
+    out = tmp_path / "acl"
+    result, with_acl = _run(
+        _scenario(tmp_path, acl=True), out, ["--pose", "0", "--msg", "0", "--cmd", "0"], credentials=True
+    )
+    _same_trajectory(clean, with_acl)
+    records = _records(out)
+    stats = json.loads((out / "server_stats.json").read_text())
+    assert [records[i]["messages"]["future"] for i in range(COUNT)] == [0, 1, 0, 0, 0, 1]  # 0's neighbours
+    assert records[0]["poses"]["future"] == 0  # the router refused the forged pose
+    assert stats["future_commands"] == 1 and stats["ticks_missed"] == 0
