@@ -42,6 +42,7 @@ subscribed to and received in ``<log-dir>/agent_<i>.json`` (once it is ready, an
 from __future__ import annotations
 
 import collections
+import contextlib
 import itertools
 import json
 import os
@@ -107,7 +108,7 @@ class Inlet:
     A full deque drops its oldest payload; ``overflow`` counts them (arrivals - taken - queued).
     ``wake_fd``: the write end of a pipe, written once per arrival, for a reader that blocks."""
 
-    __slots__ = ("queue", "arrivals", "taken", "wake_fd", "_reads")
+    __slots__ = ("_reads", "arrivals", "queue", "taken", "wake_fd")
 
     def __init__(self, capacity: int, wake_fd: int | None = None):
         self.queue: collections.deque[bytes] = collections.deque(maxlen=capacity)
@@ -120,10 +121,8 @@ class Inlet:
         self.queue.append(sample.payload.to_bytes())
         next(self.arrivals)
         if self.wake_fd is not None:
-            try:
+            with contextlib.suppress(OSError):  # full (the reader finds the queue non-empty) or closed
                 os.write(self.wake_fd, b"\0")
-            except OSError:  # the pipe is full (the reader will find the queue full too) or closed
-                pass
 
     def take(self) -> bytes | None:
         try:
@@ -311,10 +310,8 @@ class RobotAgent:
                     self._blocking = False
             except _Wake:
                 return None
-            try:
+            with contextlib.suppress(BlockingIOError):
                 os.read(self._wake_r, 65536)  # one byte per arrival: drop what is there
-            except BlockingIOError:
-                pass
 
     # ------------------------------------------------------------------ channels (main thread)
     def _drain_liveliness(self) -> None:

@@ -50,14 +50,14 @@ ACCEPT, OLD, FUTURE, CANDIDATE = "accept", "old", "future", "candidate"
 class PoseWindow:
     """The agent's clock: the tick of its newest genuine pose and when it came (eq. 1).
 
-    :meth:`offer` classifies a pose tick: ``ACCEPT`` (newer and inside the window, or confirming the
-    candidate), ``OLD`` (not newer than the newest accepted), ``CANDIDATE`` (beyond the window, held
-    until a second pose confirms it). ``future`` counts candidates that were superseded (forged, or
-    dated ahead for any other reason), ``confirmed`` those a later pose confirmed (genuine, received
-but skipped); :meth:`close` counts a candidate still pending as future.
+        :meth:`offer` classifies a pose tick: ``ACCEPT`` (newer and inside the window, or confirming the
+        candidate), ``OLD`` (not newer than the newest accepted), ``CANDIDATE`` (beyond the window, held
+        until a second pose confirms it). ``future`` counts candidates that were superseded (forged, or
+        dated ahead for any other reason), ``confirmed`` those a later pose confirmed (genuine, received
+    but skipped); :meth:`close` counts a candidate still pending as future.
     """
 
-    __slots__ = ("step_s", "tick", "at_s", "candidate", "candidate_at_s", "future", "confirmed")
+    __slots__ = ("at_s", "candidate", "candidate_at_s", "confirmed", "future", "step_s", "tick")
 
     def __init__(self, step_s: float):
         self.step_s = step_s

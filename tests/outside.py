@@ -105,12 +105,13 @@ def forge(args: argparse.Namespace) -> dict:
     ring = zenoh.handlers.RingChannel
     watch = session.declare_subscriber(pose_key(run, args.watch), ring(4))
     sources = {}
-    if args.pose is not None:
-        sources["pose"] = (pose_key(run, args.pose), session.declare_subscriber(pose_key(run, args.pose), ring(4)))
-    if args.msg is not None:
-        sources["msg"] = (msg_key(run, args.msg), session.declare_subscriber(msg_key(run, args.msg), ring(4)))
-    if args.cmd is not None:
-        sources["cmd"] = (cmd_key(run, args.cmd), session.declare_subscriber(cmd_key(run, args.cmd), ring(4)))
+    for kind, key_of, robot in (
+        ("pose", pose_key, args.pose),
+        ("msg", msg_key, args.msg),
+        ("cmd", cmd_key, args.cmd),
+    ):
+        if robot is not None:
+            sources[kind] = (key_of(run, robot), session.declare_subscriber(key_of(run, robot), ring(4)))
     sent: dict[str, dict] = {}
     give_up_s = time.monotonic() + args.timeout
     genuine: dict[str, bytes] = {}
@@ -128,8 +129,11 @@ def forge(args: argparse.Namespace) -> dict:
                 if kind not in genuine:  # under access control the rogue may not see this key
                     if not args.blind:
                         continue
-                    genuine[kind] = {"pose": pose(tick, 0.0, 0.0, 0.0), "cmd": command(tick, 0.4, -0.4),
-                                     "msg": message(tick, [0.0] * args.dim)}[kind]
+                    genuine[kind] = {
+                        "pose": pose(tick, 0.0, 0.0, 0.0),
+                        "cmd": command(tick, 0.4, -0.4),
+                        "msg": message(tick, [0.0] * args.dim),
+                    }[kind]
                 forged = moved(genuine[kind], ahead)
                 session.put(key, forged)
                 sent[kind] = {"key": key, "tick": tick_of(forged), "at_tick": tick}
