@@ -5,7 +5,7 @@ is on disk (marked partial when the run did not complete) and prints the summary
 directory, unless ``--no-report`` (``swarm run`` writes them itself).
 
 Exit status: 0 the run completed, 1 it failed (agents did not come up), 2 bad input (one line on
-stderr: a scenario that does not load, an endpoint that cannot be listened on, ...), 3 interrupted.
+stderr: a scenario that does not load, an endpoint that cannot be listened on, ...), 130 interrupted.
 
 A scenario with ``sim.acl: true`` needs ``--users FILE``: the agents' ``user:password`` lines
 (``python -m swarm.acl credentials``); the router then admits only those users, each to its own

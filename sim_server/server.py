@@ -55,11 +55,11 @@ from swarm.scenario import Scenario
 
 log = logging.getLogger(__name__)
 
-EXIT_DONE, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 3
+EXIT_DONE, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 STATS_EVERY_S = 1.0
-"""While the run goes on, ``server_stats.json`` is rewritten (atomically) at most this often, so a
-killed server still leaves its counters of a moment ago."""
+"""While the run goes on, ``server_stats.json`` is rewritten (atomically) at the first tick and then
+at most this often, so a killed server still leaves its counters of a moment ago."""
 
 
 @dataclass
@@ -143,7 +143,7 @@ class SimServer:
         self._fresh: set[int] = set()  # robots whose command of the current tick is in
         self._published_at_s: dict[int, float] = {}
         self._newest_cmd_tick: dict[int, int] = {}  # robot -> tick of the newest command accepted
-        self._stats_written_s = time.perf_counter()
+        self._stats_written_s = -math.inf  # written at the first tick: a server killed early leaves it too
         self.stats: dict[str, Any] = {
             "invalid_commands": 0,
             "late_commands": 0,

@@ -1,7 +1,6 @@
 """The ``swarm`` command line.
 
-Exit status: 0 success met, 1 ran but did not meet it, 2 bad input or failed to run, 130 interrupted
-(Ctrl-C; the partial results of the run are written first).
+RECORDING_FORMATS = ("mcap", "rerun")
 """
 
 from __future__ import annotations
@@ -31,7 +30,10 @@ SWEEP_CONTROLLER_NAMES = [
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_SCENARIO = "scenarios/thesis/cycle-gnn.yaml"
 EXIT_SUCCESS, EXIT_NOT_MET, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+<<<<<<< HEAD
 RECORDING_FORMATS = ("mcap", "rerun")
+=======
+>>>>>>> 722e15f (Exit codes with one meaning each (a server killed from outside: 1; Ctrl-C: 130; a bad model file: one line, exit 2, before any process starts, both engines); server_stats.json written from the first tick; chaos: forge blind for a dead sender)
 
 
 class UsageError(Exception):
@@ -455,6 +457,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from swarm.distributed import RunFailed
     from swarm.scenario import ScenarioError
     from swarm.usage import configure_logging, one_line
 
@@ -462,6 +465,9 @@ def main(argv: list[str] | None = None) -> int:
     configure_logging(-1 if args.quiet else args.verbose)
     try:
         return args.handler(args)
+    except RunFailed as error:  # ran, could not complete: not bad input
+        print(f"swarm {args.command}: run failed: {one_line(error)}", file=sys.stderr)
+        return EXIT_NOT_MET
     except (ScenarioError, UsageError) as error:
         print(f"swarm {args.command}: error: {error}", file=sys.stderr)
         return EXIT_BAD_INPUT

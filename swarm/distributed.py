@@ -53,8 +53,9 @@ FAULT_POLL_S = 0.005
 """How often the runner looks at the trajectory while a process fault is still to come."""
 
 
-class RunFailed(ScenarioError):
-    """The processes could not complete the run (CLI exit status 2); one line for the user."""
+class RunFailed(RuntimeError):
+    """The processes ran but could not complete the run (a server killed from outside, agents that
+    never came up): CLI exit status 1, one line for the user. Bad input is a ScenarioError (exit 2)."""
 
 
 def _run_id(name: str) -> str:
@@ -323,6 +324,12 @@ def _run_distributed(
     model = None
     if scenario.controller.kind == "gnn":
         model = resolve_model_path(scenario.controller.model, scenario_path).resolve()
+        from swarm.policy import PolicyFormatError, load_policy
+
+        try:  # before any process starts: a bad file is bad input, not agents that exit with 1
+            load_policy(model, scenario.robot, scenario.robots.count)
+        except PolicyFormatError as error:
+            raise ScenarioError(f"controller.model: {model}: {error}") from None
         data = scenario.model_dump(mode="json")
         data["controller"]["model"] = str(model)  # the server reads the copy in the results directory
         scenario = parse_scenario(data)

@@ -185,20 +185,40 @@ class Policy(FeatureController):
     def load(
         cls, source: str | Path | bytes, robot: RobotParams | None = None, robot_count: int = 0
     ) -> Policy | FloodPolicy:
-        """From a file path or from the file's bytes (an agent receives the file over the network)."""
+        """From a file path or from the file's bytes (an agent receives the file over the network).
+        Anything that is not a readable policy file raises :class:`PolicyFormatError` with the reason."""
+        try:
+            if isinstance(source, bytes):
+                head = source[:4]
+            else:
+                with Path(source).open("rb") as file:
+                    head = file.read(4)
+        except OSError as error:
+            raise PolicyFormatError(f"cannot read policy file: {error.strerror or error}") from None
+        if head != b"PK\x03\x04":  # an .npz file is a zip archive
+            raise PolicyFormatError("not a policy file (not an .npz archive)")
         try:
             with np.load(
                 io.BytesIO(source) if isinstance(source, bytes) else source, allow_pickle=False
             ) as file:
                 arrays = {name: file[name] for name in file.files}
-        except (OSError, ValueError) as error:
-            raise PolicyFormatError(f"cannot read policy file: {error}") from None
+        except Exception as error:  # zipfile, zlib, numpy: a damaged or truncated archive raises many kinds
+            raise PolicyFormatError(
+                f"damaged or truncated policy file ({type(error).__name__}: {error})"
+            ) from None
         if METADATA_KEY not in arrays:
-            raise PolicyFormatError("policy file has no metadata")
-        metadata = json.loads(arrays.pop(METADATA_KEY).tobytes().decode("utf-8"))
-        if metadata.get("model", {}).get("kind") == FLOOD_KIND:
-            return FloodPolicy(metadata, arrays, robot, robot_count)
-        return cls(metadata, arrays, robot, robot_count)
+            raise PolicyFormatError("policy file has no metadata (not a gnn-swarm policy)")
+        try:
+            metadata = json.loads(arrays.pop(METADATA_KEY).tobytes().decode("utf-8"))
+            if not isinstance(metadata, dict):
+                raise ValueError("metadata is not a mapping")
+            if metadata.get("model", {}).get("kind") == FLOOD_KIND:
+                return FloodPolicy(metadata, arrays, robot, robot_count)
+            return cls(metadata, arrays, robot, robot_count)
+        except PolicyFormatError:
+            raise
+        except Exception as error:  # foreign or damaged metadata and arrays: KeyError, TypeError, shapes
+            raise PolicyFormatError(f"not a usable policy ({type(error).__name__}: {error})") from None
 
     def act_one(
         self, pose: np.ndarray, neighbour_messages: np.ndarray, robot_count: int | None = None

@@ -115,9 +115,14 @@ def forge(args: argparse.Namespace) -> dict:
     sent: dict[str, dict] = {}
     give_up_s = time.monotonic() + args.timeout
     genuine: dict[str, bytes] = {}
+    last_pose_s = time.monotonic()
     while time.monotonic() < give_up_s and len(sent) < len(sources):
         payload = latest(watch)
         tick = tick_of(payload) if payload is not None else None
+        if tick is not None:
+            last_pose_s = time.monotonic()
+        elif time.monotonic() - last_pose_s > args.quiet_s:
+            break  # the run is over (or never started): nothing to forge into
         for kind, (_, subscriber) in sources.items():
             newest = latest(subscriber)
             if newest is not None:
@@ -162,6 +167,7 @@ def main(argv: list[str] | None = None) -> int:
     f.add_argument("--blind", action="store_true", help="forge a key even if no genuine sample was seen")
     f.add_argument("--credentials")
     f.add_argument("--timeout", type=float, default=120.0)
+    f.add_argument("--quiet-s", type=float, default=10.0, help="give up after this long without a pose")
     f.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
     report = forge(args)
