@@ -25,6 +25,8 @@ from swarm.procs import die_with_parent
 from swarm.scenario import ScenarioError, load_scenario, resolve_model_path
 from swarm.usage import EXIT_BAD_INPUT, OneLineArgumentParser, configure_logging, one_line, silenced_stderr
 
+ADMIN_SPACE = {"adminspace/enabled": True, "adminspace/permissions": {"read": True, "write": False}}
+
 
 def build_parser() -> argparse.ArgumentParser:
     parser = OneLineArgumentParser(
@@ -50,6 +52,12 @@ def build_parser() -> argparse.ArgumentParser:
         "--users", help="sim.acl: file of the agents' user:password lines (python -m swarm.acl credentials)"
     )
     parser.add_argument("--startup-timeout", type=float, default=60.0, help="seconds to wait for all agents")
+    parser.add_argument(
+        "--admin-space",
+        action="store_true",
+        help="open the router's Zenoh admin space (@/<zid>/router/**) read-only: who declared what, "
+        "seen by the router (tests/test_declarations.py)",
+    )
     parser.add_argument("--die-with-parent", action="store_true", help="exit when the parent process dies")
     parser.add_argument("--quiet", action="store_true")
     parser.add_argument(
@@ -101,6 +109,8 @@ def main(argv: list[str] | None = None) -> int:
             settings = acl_settings(scenario, args)
         elif args.users:
             raise ValueError(f"--users is for scenarios with sim.acl: true, and {args.scenario} has not")
+        if args.admin_space:
+            settings = {**settings, **ADMIN_SPACE}
         options = ServerOptions(
             run=args.run,
             out_dir=Path(args.out),
