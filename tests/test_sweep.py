@@ -23,6 +23,24 @@ def test_no_start_beats_the_lower_bound(topology, controller):
     times, lower = cell["times_s"], cell["lower_bound_s"]
     assert not np.isnan(times).any(), f"{topology}/{controller}: some starts did not converge"
     assert np.all(times >= lower), f"beat the bound: {np.min(times - lower)}"
+    if controller == "centralized" and topology != "disk":
+        # the other side: the bound is nearly attained (the centralized controller heads for the
+        # enclosing circle's centre at full speed), so a bound too small, or zero, fails here
+        assert np.all(lower > 0) and np.min(times / lower) < 1.1, np.min(times / lower)
+
+
+def test_lower_bound_equals_the_hand_computed_value():
+    """Two robots D apart: R_mec = D / 2; an equilateral triangle of side s: R_mec = s / sqrt(3)
+    (hand-computed, not from the enclosing-circle code); bound = (R_mec - threshold / sqrt(3)) / v_max."""
+    v, threshold = 0.5, 0.2
+    two = np.array([[0.0, 0.0], [3.0, 0.0]])
+    assert metrics.lower_bound_s(two, threshold, v) == pytest.approx((1.5 - threshold / 3**0.5) / v)
+    s = 2.0
+    triangle = np.array([[0.0, 0.0], [s, 0.0], [s / 2, s * 3**0.5 / 2]]) + 7.0
+    assert metrics.lower_bound_s(triangle, threshold, v) == pytest.approx(
+        (s / 3**0.5 - threshold / 3**0.5) / v
+    )
+    assert metrics.lower_bound_s(two, 10.0, v) == 0.0  # already within the threshold
 
 
 def test_convergence_time_matches_a_full_trajectory():
@@ -96,9 +114,14 @@ def test_sweep_command_writes_tables_and_plots(tmp_path):
         ("random", "centralized"),
     }
     assert all(float(row["success_rate"]) == 1.0 for row in rows)
-    # a second run reuses the cached cells and gives the same table
+    # a second run reuses the cached cells: a cell whose saved times are changed on disk shows the
+    # changed times (a sweep that ignored its cache would recompute the original ones)
     table = (out / "sweep.md").read_text()
-    (out / "cells" / "cycle_6_local_consensus.npz").touch()
+    cell_file = out / "cells" / "cycle_6_local_consensus.npz"
+    with np.load(cell_file) as saved:
+        arrays = {name: saved[name] for name in saved.files}
+    arrays["times_s"] = np.full_like(arrays["times_s"], 123.45)
+    np.savez_compressed(cell_file, **arrays)
     assert (
         main(
             [
@@ -117,7 +140,13 @@ def test_sweep_command_writes_tables_and_plots(tmp_path):
         )
         == 0
     )
-    assert (out / "sweep.md").read_text() == table
+    changed = (out / "sweep.md").read_text()
+    cycle_rows = [line for line in changed.splitlines() if line.startswith("| cycle | 6 | local_consensus")]
+    assert len(cycle_rows) == 1 and "| 123.45 |" in cycle_rows[0], cycle_rows
+    others = [line for line in changed.splitlines() if not line.startswith("| cycle | 6 | local_consensus")]
+    assert others == [
+        line for line in table.splitlines() if not line.startswith("| cycle | 6 | local_consensus")
+    ]
 
 
 def test_sweep_bad_input_is_one_line_and_exit_2(tmp_path, capsys):
