@@ -1,0 +1,260 @@
+"""Mutation check of the suite: each mutation breaks the code on purpose, in a temporary copy of the
+project, and the tests that guard that behaviour must then fail.
+
+For every mutation below the script copies the working tree (without ``.git`` and run outputs) to a
+temporary directory, replaces one exact piece of code (the script stops if the piece is not found
+exactly once: the code moved and the mutation must follow it), runs the named tests there with
+``python -m pytest -x -q`` and expects a non-zero exit. ``--baseline`` also runs the same tests on the
+unmutated copy first and expects them to pass (a test that fails anyway catches nothing).
+
+Run: ``python bench/mutations.py [--baseline] [--only NAME ...]`` (under ``nice``; ~10 min on two cores).
+Writes ``bench/results/mutations.md`` and ``.json``. Exit status 0 when every mutation was caught, 1
+otherwise, 2 for bad arguments.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+PROJECT_ROOT = Path(__file__).resolve().parent.parent
+RESULTS = PROJECT_ROOT / "bench" / "results"
+
+
+@dataclass(frozen=True)
+class Mutation:
+    name: str
+    what: str
+    path: str
+    before: str
+    after: str
+    tests: tuple[str, ...]
+
+
+MUTATIONS = [
+    Mutation(
+        "wire-checks-removed",
+        "swarm/wire.py without its NaN, magnitude and message-length checks",
+        "swarm/wire.py",
+        """    value = float(value)
+    if not math.isfinite(value) or abs(value) > bound:
+        return None
+    return value""",
+        """    value = float(value)
+    return value""",
+        ("tests/test_fuzz.py",),
+    ),
+    Mutation(
+        "message-length-check-removed",
+        "a message of another length than the controller's is accepted",
+        "swarm/wire.py",
+        """    if dim is not None and size != dim:
+        return None
+""",
+        "",
+        ("tests/test_fuzz.py",),
+    ),
+    Mutation(
+        "agent-subscribes-to-every-message",
+        "an agent also subscribes to every robot's messages (agent/*/msg) but records only its neighbours",
+        "robot_agent/agent.py",
+        """        for j in config.neighbours:
+            self._alive_subs[j] = session.liveliness().declare_subscriber(""",
+        """        spy = Inlet(MESSAGE_RING)
+        entities.append(session.declare_subscriber(f"{keys.prefix}/agent/*/msg", inline(spy, indirect=False)))
+        for j in config.neighbours:
+            self._alive_subs[j] = session.liveliness().declare_subscriber(""",
+        ("tests/test_declarations.py",),
+    ),
+    Mutation(
+        "numpy-gain-1.5x",
+        "the numpy policy's output 1.5x too large (the torch model unchanged)",
+        "swarm/policy.py",
+        """        return self.output_scale_mps * self._network(features_local / self.feature_scale_m)""",
+        "        return 1.5 * self.output_scale_mps * self._network(features_local / self.feature_scale_m)",
+        ("tests/test_policy.py::test_numpy_forward_equals_torch",),
+    ),
+    Mutation(
+        "numpy-gnn-gain-1.5x",
+        "the numpy graph filter's gain 1.5x too large",
+        "swarm/policy.py",
+        """        return gain[..., None] * (weights[..., None] * f).sum(-2)""",
+        """        return 1.5 * gain[..., None] * (weights[..., None] * f).sum(-2)""",
+        ("tests/test_policy.py::test_numpy_forward_equals_torch",),
+    ),
+    Mutation(
+        "lower-bound-zero",
+        "the lower bound is always zero",
+        "swarm/metrics.py",
+        """    return max(0.0, radius_m - threshold_m / math.sqrt(3.0)) / v_max_mps""",
+        """    return 0.0 * max(0.0, radius_m - threshold_m / math.sqrt(3.0)) / v_max_mps""",
+        ("tests/test_sweep.py::test_no_start_beats_the_lower_bound",),  # the sweep alone, not the unit test
+    ),
+    Mutation(
+        "lower-bound-halved",
+        "the lower bound is half what it should be",
+        "swarm/metrics.py",
+        """    return max(0.0, radius_m - threshold_m / math.sqrt(3.0)) / v_max_mps""",
+        """    return 0.5 * max(0.0, radius_m - threshold_m / math.sqrt(3.0)) / v_max_mps""",
+        ("tests/test_sweep.py::test_no_start_beats_the_lower_bound",),
+    ),
+    Mutation(
+        "sweep-cache-ignored",
+        "a sweep recomputes every cell instead of reading its cache",
+        "swarm/sweep.py",
+        """    cell = find_cached_cell(out_dir, config, topology, count, controller, reuse)
+    if cell is not None:
+        return cell""",
+        """    cell = None""",
+        ("tests/test_sweep.py::test_sweep_command_writes_tables_and_plots",),
+    ),
+    Mutation(
+        "no-tick-window",
+        "agents believe any tick (the window of swarm/ticks.py removed)",
+        "swarm/ticks.py",
+        """        if self.tick < 0:
+            return 0  # before the first pose: only tick 0 is believed without confirmation
+        return tick_limit(self.tick, now_s - self.at_s, self.step_s)""",
+        """        return 2**62""",
+        ("tests/test_forged_ticks.py",),
+    ),
+    Mutation(
+        "server-accepts-future-commands",
+        "the server applies a command dated after its own tick",
+        "sim_server/server.py",
+        """            if cmd.tick > self._tick:
+                self.stats["future_commands"] += 1
+                return
+""",
+        "",
+        ("tests/test_forged_ticks.py",),
+    ),
+    Mutation(
+        "killed-server-is-bad-input",
+        "a run whose server was killed from outside exits 2 (bad input)",
+        "swarm/cli.py",
+        """    except RunFailed as error:  # ran, could not complete: not bad input
+        print(f"swarm {args.command}: run failed: {one_line(error)}", file=sys.stderr)
+        return EXIT_NOT_MET""",
+        """    except RunFailed as error:  # ran, could not complete: not bad input
+        print(f"swarm {args.command}: run failed: {one_line(error)}", file=sys.stderr)
+        return EXIT_BAD_INPUT""",
+        ("tests/test_exit_codes.py::test_a_sim_server_killed_from_outside_is_exit_1_not_bad_input",),
+    ),
+    Mutation(
+        "model-not-checked-before-start",
+        "the pybullet engine starts its processes without reading the model file first",
+        "swarm/distributed.py",
+        """        try:  # before any process starts: a bad file is bad input, not agents that exit with 1
+            load_policy(model, scenario.robot, scenario.robots.count)
+        except PolicyFormatError as error:
+            raise ScenarioError(f"controller.model: {model}: {error}") from None""",
+        """        del load_policy, PolicyFormatError""",
+        ("tests/test_exit_codes.py::test_a_bad_model_file_is_one_line_exit_2_before_anything_starts",),
+    ),
+]
+
+
+def _copy(destination: Path) -> None:
+    ignore = shutil.ignore_patterns(
+        ".git", "runs", "__pycache__", ".pytest_cache", ".venv", "*.egg-info", "data"
+    )
+    shutil.copytree(PROJECT_ROOT, destination, ignore=ignore, symlinks=True)
+
+
+def _pytest(root: Path, tests: tuple[str, ...]) -> tuple[int, str, float]:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(root)
+    started_s = time.perf_counter()
+    done = subprocess.run(
+        [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *tests],
+        cwd=root,
+        env=env,
+        capture_output=True,
+        text=True,
+    )
+    lines = [line for line in (done.stdout + done.stderr).strip().splitlines() if line.strip()]
+    return done.returncode, lines[-1] if lines else "", round(time.perf_counter() - started_s, 1)
+
+
+def apply(root: Path, mutation: Mutation) -> None:
+    path = root / mutation.path
+    text = path.read_text()
+    found = text.count(mutation.before)
+    if found != 1:
+        raise SystemExit(f"{mutation.name}: the code to mutate was found {found} times in {mutation.path}")
+    path.write_text(text.replace(mutation.before, mutation.after))
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--baseline", action="store_true", help="run each mutation's tests unmutated first")
+    parser.add_argument("--only", nargs="+", help="these mutations only")
+    parser.add_argument("--out", default=str(RESULTS / "mutations"), help="results, without suffix")
+    args = parser.parse_args(argv)
+    chosen = [m for m in MUTATIONS if not args.only or m.name in args.only]
+    if args.only and len(chosen) != len(args.only):
+        parser.error(f"unknown mutation; known: {', '.join(m.name for m in MUTATIONS)}")
+    results = []
+    for mutation in chosen:
+        entry = {
+            "name": mutation.name,
+            "what": mutation.what,
+            "file": mutation.path,
+            "tests": list(mutation.tests),
+        }
+        if args.baseline:
+            with tempfile.TemporaryDirectory(prefix="baseline-") as scratch:
+                root = Path(scratch) / "project"
+                _copy(root)
+                status, last, wall_s = _pytest(root, mutation.tests)
+                entry["baseline"] = {"status": status, "last_line": last, "wall_s": wall_s}
+        with tempfile.TemporaryDirectory(prefix="mutant-") as scratch:
+            root = Path(scratch) / "project"
+            _copy(root)
+            apply(root, mutation)
+            status, last, wall_s = _pytest(root, mutation.tests)
+        entry.update(status=status, last_line=last, wall_s=wall_s, caught=status != 0)
+        if args.baseline:
+            entry["caught"] = entry["caught"] and entry["baseline"]["status"] == 0
+        results.append(entry)
+        print(f"{mutation.name}: {'caught' if entry['caught'] else 'MISSED'} ({last})", flush=True)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    command = "python bench/mutations.py" + (" --baseline" if args.baseline else "")
+    command += f" --only {' '.join(args.only)}" if args.only else ""
+    out.with_suffix(".json").write_text(
+        json.dumps({"command": command, "mutations": results}, indent=1) + "\n"
+    )
+    lines = [
+        "# Mutation check",
+        "",
+        f"`{command}` ({time.strftime('%Y-%m-%d %H:%M', time.gmtime())} UTC). Each mutation is applied to a"
+        " temporary copy of the project; its tests must fail (`bench/mutations.py`).",
+        "",
+        "| mutation | what it breaks | tests | result | pytest's last line |",
+        "|---|---|---|---|---|",
+    ]
+    for entry in results:
+        verdict = "caught" if entry["caught"] else "**missed**"
+        if "baseline" in entry:
+            verdict += f" (unmutated: exit {entry['baseline']['status']})"
+        tests = "<br>".join(f"`{test}`" for test in entry["tests"])
+        last = entry["last_line"].replace("|", "/")
+        lines.append(f"| `{entry['name']}` | {entry['what']} | {tests} | {verdict} | {last} |")
+    caught = sum(entry["caught"] for entry in results)
+    lines += ["", f"{caught} of {len(results)} mutations caught.", ""]
+    out.with_suffix(".md").write_text("\n".join(lines))
+    return 0 if caught == len(results) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
