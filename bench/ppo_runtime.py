@@ -10,6 +10,9 @@ each run's ``metrics.json`` and ``trajectory.jsonl``: convergence time at the sc
 ``docs/results/rl/ppo/runtime.json`` and ``.md``.
 
     python bench/ppo_runtime.py [--seeds 7 8] [--count 20] [--gain 8] [--engines pybullet kinematic]
+
+Without ``--gain``, local consensus runs with the gain tuned for the graph and N in
+``docs/results/rl/ppo/tuned_lc.json`` (``python bench/tune_consensus_gain.py``).
 """
 
 from __future__ import annotations
@@ -164,6 +167,18 @@ def write(rows: list[dict], args: argparse.Namespace, out_dir: Path) -> None:
     (out_dir / "runtime.md").write_text("\n".join(lines) + "\n")
 
 
+TUNED = Path(__file__).resolve().parent.parent / "docs" / "results" / "rl" / "ppo" / "tuned_lc.json"
+
+
+def tuned_gain(path: Path, topology: str, count: int) -> float:
+    """The tuned K of local consensus for ``topology`` at ``count`` robots (tune_consensus_gain.py)."""
+    cells = json.loads(path.read_text())["cells"]
+    for cell in cells:
+        if cell["topology"] == topology and cell["robots"] == count:
+            return float(cell["tuned_gain_per_s"])
+    raise SystemExit(f"{path}: no tuned gain for {topology} N={count}: run bench/tune_consensus_gain.py")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -173,7 +188,10 @@ def main() -> None:
     parser.add_argument("--topology", default="cycle")
     parser.add_argument("--count", type=int, default=20)
     parser.add_argument(
-        "--gain", type=float, default=9.5137, help="tuned gain of local consensus (tuned_lc.md)"
+        "--gain",
+        type=float,
+        help="gain of local consensus (default: the tuned one for --topology and --count in "
+        "docs/results/rl/ppo/tuned_lc.json, from bench/tune_consensus_gain.py)",
     )
     parser.add_argument("--seeds", nargs="+", type=int, default=[7, 8])
     parser.add_argument("--engines", nargs="+", default=["pybullet", "kinematic"])
@@ -183,6 +201,8 @@ def main() -> None:
     add_output_arguments(parser, committed=OUT_DIR)
     args = parser.parse_args()
     out_dir = output_dir(args, committed=OUT_DIR)
+    if args.gain is None:
+        args.gain = tuned_gain(TUNED, args.topology, args.count)
     controllers = [
         {"name": "ppo", "kind": "gnn", "model": str((ROOT / args.model).resolve())},
         {"name": "bc", "kind": "gnn", "model": str((ROOT / args.bc).resolve())},
