@@ -112,6 +112,22 @@ def test_bad_credentials_file_is_one_clear_error(tmp_path, content, reason):
 # ----------------------------------------------------------------------------- a real run and a rogue
 
 
+def open_with_retries(config, deadline_s: float = 60.0):
+    """``zenoh.open(config())``, retried until ``deadline_s`` from now: a loaded machine may refuse a
+    connection for a moment ("Unable to connect"); the right credentials always get in eventually."""
+    import zenoh
+
+    give_up_s, delay_s = time.monotonic() + deadline_s, 0.05
+    while True:
+        try:
+            return zenoh.open(config())
+        except zenoh.ZError:
+            if time.monotonic() + delay_s > give_up_s:
+                raise
+            time.sleep(delay_s)
+            delay_s = min(2 * delay_s, 1.0)
+
+
 def rogue(endpoint: str, run: str, robot: int, count: int, credentials: str, out: Path) -> None:
     """Robot ``robot``'s credentials in the wrong hands: try to see and touch everything; record what
     got through. Ends when the sim's token goes away."""
@@ -133,7 +149,11 @@ def rogue(endpoint: str, run: str, robot: int, count: int, credentials: str, out
         return count_sample
 
     puts = {"own_future_commands": 0, "other_commands": 0, "other_poses": 0, "other_messages": 0}
-    with zenoh.open(config()) as watcher, zenoh.open(config()) as listener, zenoh.open(config()) as writer:
+    with (
+        open_with_retries(config) as watcher,
+        open_with_retries(config) as listener,
+        open_with_retries(config) as writer,
+    ):
         entities = [
             watcher.declare_subscriber(f"{keys.prefix}/**", counter("wildcard"), allowed_origin=remote),
             watcher.liveliness().declare_subscriber(
@@ -202,6 +222,7 @@ def test_acl_run_converges_and_a_rogue_robot_reaches_only_its_neighbourhood(tmp_
     count, rogue_robot = 5, 0
     data = yaml.safe_load((PROJECT_ROOT / "scenarios/security/acl.yaml").read_text())
     data["robots"]["count"] = count
+    data["sim"]["deadline"] = 5.0  # a loaded machine misses no tick: every tick is served, as counted below
     scenario = tmp_path / "acl.yaml"
     scenario.write_text(yaml.safe_dump(data))
     steps = round(data["sim"]["duration"] / data["sim"]["control_period"])

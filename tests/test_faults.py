@@ -517,6 +517,8 @@ def lossy_cycle(tmp_path_factory):
         tmp_path,
         "delay",
         sim__duration=4.0,
+        sim__deadline=5.0,  # no loaded machine misses these: a missed one would change the trajectory
+        sim__neighbour_deadline=5.0,
         faults=[
             {"at": 0.5, "kind": "drop_link", "link": [0, 1]},
             {"at": 1.5, "kind": "restore_link", "link": [0, 1]},
