@@ -78,7 +78,7 @@ def draw_plan(seed: int) -> dict:
     count = rng.randint(3, 5)
     topology = rng.choice(["complete", "cycle", "line"])
     mode = "realtime" if rng.random() < 0.15 else "lockstep"
-    duration_s = 5.0 if mode == "realtime" else 7.0
+    duration_s = 6.0 if mode == "realtime" else 8.0
     steps = round(duration_s / PERIOD_S)
     faults: list[dict] = []
     kinds: list[str] = []
@@ -158,18 +158,6 @@ def _env() -> dict[str, str]:
     return env
 
 
-def _wait_for_agent(out: Path, run: subprocess.Popen, timeout_s: float = 60.0) -> dict | None:
-    path = out / "logs" / "agent_0.json"
-    give_up_s = time.monotonic() + timeout_s
-    while time.monotonic() < give_up_s and run.poll() is None:
-        with contextlib.suppress(FileNotFoundError, json.JSONDecodeError):
-            record = json.loads(path.read_text())
-            if record.get("run") and record.get("ready_s") is not None:
-                return record
-        time.sleep(0.02)
-    return None
-
-
 def _swarm_run(scenario_path: Path, out: Path, forge: dict | None) -> dict:
     """``swarm run`` (and the forger beside it); exit status, output, what the forger sent."""
     command = [sys.executable, "-m", "swarm.cli", "run", str(scenario_path), "--out", str(out), "--quiet"]
@@ -177,34 +165,19 @@ def _swarm_run(scenario_path: Path, out: Path, forge: dict | None) -> dict:
     run = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env())
     sent, forger_error = None, None
     try:
-        if forge is not None:
-            record = _wait_for_agent(out, run)
-            if record is not None:
-                sent_path = out.parent / f"{out.name}-sent.json"
-                forger = [sys.executable, str(OUTSIDE), "forge", "--endpoint", record["connect"][0]]
-                forger += [
-                    "--run",
-                    record["run"],
-                    "--at-tick",
-                    str(forge["at_tick"]),
-                    "--ahead",
-                    str(AHEAD_TICKS),
-                ]
-                forger += [
-                    "--pose",
-                    str(forge["pose"]),
-                    "--msg",
-                    str(forge["msg"]),
-                    "--cmd",
-                    str(forge["cmd"]),
-                ]
-                # --blind: a sender that is dead (killed, hung) has no genuine sample to move: forge one
-                forger += ["--timeout", "60", "--blind", "--out", str(sent_path)]
-                done = subprocess.run(forger, capture_output=True, text=True, timeout=120)
-                if done.returncode == 0:
-                    sent = json.loads(sent_path.read_text())["sent"]
-                else:  # e.g. it could not connect within its deadline: reported, not a violation
-                    forger_error = done.stderr.strip().splitlines()[-1:] or [f"status {done.returncode}"]
+        if forge is not None:  # started at once: it connects as soon as the server listens
+            sent_path = out.parent / f"{out.name}-sent.json"
+            log = out / "logs" / "sim_server.log"
+            forger = [sys.executable, str(OUTSIDE), "forge", "--server-log", str(log)]
+            forger += ["--at-tick", str(forge["at_tick"]), "--ahead", str(AHEAD_TICKS)]
+            forger += ["--pose", str(forge["pose"]), "--msg", str(forge["msg"]), "--cmd", str(forge["cmd"])]
+            # --blind: a sender that is dead (killed, hung) has no genuine sample to move: forge one
+            forger += ["--timeout", "60", "--blind", "--out", str(sent_path)]
+            done = subprocess.run(forger, capture_output=True, text=True, timeout=180)
+            if done.returncode == 0:
+                sent = json.loads(sent_path.read_text())["sent"]
+            else:  # e.g. it could not connect before the run ended: reported, not a violation
+                forger_error = done.stderr.strip().splitlines()[-1:] or [f"status {done.returncode}"]
         stdout, stderr = run.communicate(timeout=RUN_TIMEOUT_S)
     except subprocess.TimeoutExpired:
         run.kill()
@@ -311,8 +284,17 @@ def check_run(plan: dict, out: Path, result: dict) -> list[str]:
     if result["status"] in (0, 1) and result["status"] != expected_status:
         violations.append(f"exit: status {result['status']} for converged={metrics.get('converged')}")
 
-    # 4. live connected robots converge
-    if not server_killed and metrics.get("graph_connected") and not metrics.get("converged"):
+    # 4. live connected robots converge (a restarted agent that never came back before the run's end,
+    # as the server saw it, leaves its robot standing while metrics counts it live: not judged then)
+    restarted = {f["robot"] for f in process if f["kind"] == "restart_agent"}
+    back = {e["robot"] for e in stats.get("agent_events", []) if e.get("event") == "back"}
+    result["not_back"] = sorted(restarted - back)
+    if (
+        not result["not_back"]
+        and not server_killed
+        and metrics.get("graph_connected")
+        and not metrics.get("converged")
+    ):
         violations.append(
             f"converge: live graph connected but not converged (final {metrics.get('final_metric')})"
         )
@@ -404,6 +386,7 @@ def soak_one(plan: dict, work: Path) -> dict:
         "forge": plan["forge"],
         "forged_sent": sorted(result["sent"] or []),
         "forger_error": result["forger_error"],
+        "restarted_not_back": result.get("not_back", []),
         "kinds": plan["kinds"],
         "status": result["status"],
         "converged": metrics.get("converged"),
@@ -433,6 +416,7 @@ def summary(entries: list[dict]) -> dict:
         "runs_without_fault": sum(not e["kinds"] for e in entries),
         "forged_samples_sent": sum(len(e["forged_sent"]) for e in entries),
         "forger_failed": sum(bool(e.get("forger_error")) for e in entries),
+        "restarted_not_back": sum(bool(e.get("restarted_not_back")) for e in entries),
         "replays_identical": sum(e["replay_identical"] is True for e in entries),
         "replays": sum(e["replay_identical"] is not None for e in entries),
         "exit_status": {
@@ -472,6 +456,8 @@ def write_report(entries: list[dict], args: argparse.Namespace, started: str) ->
         *(f"| runs with `{kind}` | {count} |" for kind, count in figures["faults_by_kind"].items()),
         f"| forged samples sent (pose, message, command) | {figures['forged_samples_sent']} |",
         f"| runs whose forger could not connect (its counts not checked) | {figures['forger_failed']} |",
+        "| runs whose restarted agent was not back before the end (convergence not judged) |"
+        f" {figures['restarted_not_back']} |",
         "| lockstep link-fault runs identical to their replay |"
         f" {figures['replays_identical']} of {figures['replays']} |",
         f"| exit status | {', '.join(f'{s}: {n}' for s, n in figures['exit_status'].items())} |",

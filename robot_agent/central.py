@@ -29,6 +29,7 @@ from swarm import wire
 from swarm.experts import centralized_mec_velocity, complete_consensus_velocity
 from swarm.procs import die_with_parent
 from swarm.robot import RobotParams, controlled_point, point_velocity_to_wheels
+from swarm.ticks import step_s_of, tick_limit
 from swarm.usage import EXIT_BAD_INPUT, OneLineArgumentParser, configure_logging, one_line
 
 POSE_DEADLINE_S = 1.0
@@ -47,6 +48,8 @@ class CentralController:
         self._sim_alive: bool | None = None
         self._poses: dict[int, dict[int, wire.Pose]] = {}  # tick -> robot -> pose
         self._last_tick = -1  # the newest tick computed
+        self._last_tick_at_s = 0.0  # when it was taken
+        self._step_s = 1.0  # swarm.ticks eq. (1), from the config once fetched
         self.record: dict = {
             "role": "centralized",
             "pid": os.getpid(),
@@ -59,6 +62,7 @@ class CentralController:
             "ticks": 0,
             "poses_invalid": 0,
             "poses_old": 0,
+            "poses_future": 0,  # dated beyond what its own clock allows (swarm.ticks): forged or ahead
             "callback_errors": 0,
             "incomplete_ticks": 0,
             "exit_reason": None,
@@ -81,6 +85,13 @@ class CentralController:
                 return
             if pose.tick <= self._last_tick:
                 self.record["poses_old"] += 1  # its tick is computed already: a replay or reordered
+                return
+            last = self._last_tick
+            limit = (
+                tick_limit(last, time.perf_counter() - self._last_tick_at_s, self._step_s) if last >= 0 else 0
+            )
+            if pose.tick > limit:  # would be taken as the next tick and freeze every robot
+                self.record["poses_future"] += 1
                 return
             self._poses.setdefault(pose.tick, {})[robot] = pose
             self._cond.notify_all()
@@ -137,6 +148,9 @@ class CentralController:
         mec = config.controller == "centralized_mec"
         reverse = bool((config.scenario.get("controller") or {}).get("reverse", True))
         record["controller"] = config.controller
+        self._step_s = step_s_of(
+            {"control_period_s": config.control_period_s, **config.scenario.get("sim", {})}
+        )
         params = RobotParams(**config.robot_params)
         entities.append(session.declare_subscriber(keys.all_poses, guard(self._on_pose)))
         record["subscriptions"].append(keys.all_poses)
@@ -164,7 +178,7 @@ class CentralController:
                     got = self._poses.pop(tick)
                     for old in [k for k in self._poses if k <= tick]:
                         del self._poses[old]
-                    self._last_tick = tick
+                    self._last_tick, self._last_tick_at_s = tick, time.perf_counter()
                 robots = sorted(got)
                 record["incomplete_ticks"] += len(robots) < count
                 poses = np.array([got[i].array() for i in robots])

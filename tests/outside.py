@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import struct
 import sys
 import time
@@ -98,8 +99,23 @@ def latest(subscriber) -> bytes | None:
     return payload
 
 
+def server_address(log: Path, timeout_s: float = 120.0) -> tuple[str, str]:
+    """``(endpoint, run)`` from the sim server's first log line, once it is there
+    (``sim_server: run R: N robots, listening on ['E']``)."""
+    pattern = re.compile(r"run (\S+): \d+ robots, listening on \['([^']+)'")
+    give_up_s = time.monotonic() + timeout_s
+    while time.monotonic() < give_up_s:
+        match = pattern.search(log.read_text(errors="replace")) if log.exists() else None
+        if match:
+            return match.group(2), match.group(1)
+        time.sleep(0.01)
+    raise SystemExit(f"{log}: no sim server address within {timeout_s:g} s")
+
+
 def forge(args: argparse.Namespace) -> dict:
     """Wait for tick ``at_tick`` on robot ``watch``'s pose, then put the forged samples once each."""
+    if args.server_log is not None:  # started beside the run: connect as soon as the server listens
+        args.endpoint, args.run = server_address(args.server_log)
     run, ahead = args.run, args.ahead
     session = open_session(args.endpoint, args.credentials)
     ring = zenoh.handlers.RingChannel
@@ -155,8 +171,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
     f = sub.add_parser("forge", help="put genuine samples with their tick moved ahead")
-    f.add_argument("--endpoint", required=True)
-    f.add_argument("--run", required=True)
+    f.add_argument("--endpoint")
+    f.add_argument("--run")
+    f.add_argument("--server-log", type=Path, help="read --endpoint and --run from this sim_server.log")
     f.add_argument("--watch", type=int, default=0, help="robot whose pose gives the current tick")
     f.add_argument("--at-tick", type=int, default=20)
     f.add_argument("--ahead", type=int, default=10**6)
@@ -170,6 +187,8 @@ def main(argv: list[str] | None = None) -> int:
     f.add_argument("--quiet-s", type=float, default=10.0, help="give up after this long without a pose")
     f.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
+    if args.server_log is None and (args.endpoint is None or args.run is None):
+        parser.error("give --endpoint and --run, or --server-log")
     report = forge(args)
     args.out.write_text(json.dumps(report))
     return 0

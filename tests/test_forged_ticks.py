@@ -20,10 +20,6 @@ import yaml
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 OUTSIDE = PROJECT_ROOT / "tests" / "outside.py"
-sys.path.insert(0, str(PROJECT_ROOT / "tests"))
-
-from test_fuzz import wait_for_agent_record  # noqa: E402
-
 AHEAD = 10**6
 COUNT = 6
 DURATION_S = 5.0
@@ -52,15 +48,20 @@ def _run(scenario: Path, out: Path, forge: list[str] | None, credentials: bool =
     )
     sent = None
     try:
-        if forge is not None:
-            record = wait_for_agent_record(out, run)
+        if forge is not None:  # started at once, beside the run: it connects while the agents start
             sent_path = out.parent / f"{out.name}-sent.json"
-            command = [sys.executable, str(OUTSIDE), "forge", "--endpoint", record["connect"][0]]
-            command += ["--run", record["run"], "--at-tick", str(AT_TICK), "--ahead", str(AHEAD), *forge]
+            command = [
+                sys.executable,
+                str(OUTSIDE),
+                "forge",
+                "--server-log",
+                str(out / "logs" / "sim_server.log"),
+            ]
+            command += ["--at-tick", str(AT_TICK), "--ahead", str(AHEAD), *forge]
             if credentials:
                 command += ["--credentials", str(out / "credentials" / "robot-0.cred"), "--blind"]
             forger = subprocess.run(
-                [*command, "--out", str(sent_path)], capture_output=True, text=True, timeout=180
+                [*command, "--out", str(sent_path)], capture_output=True, text=True, timeout=240
             )
             assert forger.returncode == 0, forger.stderr
             sent = json.loads(sent_path.read_text())["sent"]
@@ -114,3 +115,17 @@ def test_forward_dated_samples_change_nothing_with_and_without_access_control(tm
     assert [records[i]["messages"]["future"] for i in range(COUNT)] == [0, 1, 0, 0, 0, 1]  # 0's neighbours
     assert records[0]["poses"]["future"] == 0  # the router refused the forged pose
     assert stats["future_commands"] == 1 and stats["ticks_missed"] == 0
+
+
+def test_a_forward_dated_pose_does_not_freeze_the_centralized_controller(tmp_path):
+    path = _scenario(tmp_path, acl=False)
+    data = yaml.safe_load(path.read_text())
+    data["controller"] = {"kind": "centralized", "gain": 1.0}
+    path.write_text(yaml.safe_dump(data))
+    out = tmp_path / "central"
+    result, lines = _run(path, out, ["--pose", "4"])
+    assert sorted(result["sent"]) == ["pose"]
+    record = json.loads((out / "logs" / "central.json").read_text())
+    stats = json.loads((out / "server_stats.json").read_text())
+    assert record["poses_future"] == 1 and record["ticks"] == len(lines) - 1, record
+    assert stats["ticks_missed"] == 0
