@@ -182,7 +182,10 @@ def _pytest(root: Path, tests: tuple[str, ...]) -> tuple[int, str, float]:
         text=True,
     )
     lines = [line for line in (done.stdout + done.stderr).strip().splitlines() if line.strip()]
-    return done.returncode, lines[-1] if lines else "", round(time.perf_counter() - started_s, 1)
+    failed = [line for line in lines if line.startswith(("FAILED", "ERROR"))]  # the test and why
+    summary = [line for line in lines if " passed" in line or " failed" in line]
+    last = failed[0] if failed else (summary[-1] if summary else (lines[-1] if lines else ""))
+    return done.returncode, last[:300], round(time.perf_counter() - started_s, 1)
 
 
 def apply(root: Path, mutation: Mutation) -> None:
@@ -240,7 +243,7 @@ def main(argv: list[str] | None = None) -> int:
         f"`{command}` ({time.strftime('%Y-%m-%d %H:%M', time.gmtime())} UTC). Each mutation is applied to a"
         " temporary copy of the project; its tests must fail (`bench/mutations.py`).",
         "",
-        "| mutation | what it breaks | tests | result | pytest's last line |",
+        "| mutation | what it breaks | tests | result | the failing test and why (pytest) |",
         "|---|---|---|---|---|",
     ]
     for entry in results:
