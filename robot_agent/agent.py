@@ -25,9 +25,12 @@ Nothing assumes the agent starts at tick 0: a restarted agent joins at the tick 
 gets (it does not wait for messages of earlier ticks), and a neighbour whose liveliness token comes
 back after the first tick is waited for only from the first message it sends again.
 
-Receiving costs no Python thread: the pose, the neighbours' messages and their liveliness arrive in
-Zenoh ring channels (filled by Zenoh's own threads, never blocking them) that the main thread reads
-once per tick; it sleeps in the pose channel's ``recv``. Only the sim's liveliness has a callback
+Receiving costs no Python thread: the pose and the neighbours' messages are appended by a callback
+in Zenoh's own receiving thread to bounded deques (:class:`Inlet`: a full one drops its oldest and
+counts it as overflow), their liveliness arrives in Zenoh ring channels; the main thread reads them
+once per tick and sleeps on a pipe the pose callback writes to. A pose or message is accepted only
+inside the window the agent's own clock justifies (:mod:`swarm.ticks`); every rejection is counted by
+reason (invalid, old, future, overflow) in the record. Only the sim's liveliness has a callback
 (it fires once or twice a run); a stop request or the sim going away interrupts that ``recv`` with a
 signal (``run`` from the main thread; elsewhere the agent polls). In lockstep a neighbour's message
 of tick k-1 reaches the agent before its pose k (both pass the server's router in order), so the

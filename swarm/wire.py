@@ -15,8 +15,9 @@ Payloads are msgpack maps carrying ``"v": SCHEMA_VERSION``. Every ``decode_*`` v
 the schema version, types, finiteness and magnitudes (and, for a message, its length) and returns
 ``None`` for anything malformed (the caller counts it as invalid and drops it); decoding never
 raises. Ticks must also advance: a receiver drops and counts as *old* a pose, message or command
-whose tick is not newer than the newest it accepted from that sender (a replay, a reordered or a
-forged sample). Zenoh callbacks are wrapped in :func:`guarded`, so that no exception reaches Zenoh.
+whose tick is not newer than the newest it accepted from that sender (a replay or a reordered
+sample), and as *future* one dated beyond what its own clock allows (:mod:`swarm.ticks`). Zenoh
+callbacks are wrapped in :func:`guarded`, so that no exception reaches Zenoh.
 
 Importable without torch, pybullet or numba: robot agents use it.
 """
