@@ -28,7 +28,7 @@ import yaml
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(PROJECT_ROOT))
 
-from test_fuzz import wait_for_agent_record  # noqa: E402
+import outside  # noqa: E402
 
 from swarm import acl, wire  # noqa: E402 (after the path, for the script)
 from swarm.graphs import line  # noqa: E402
@@ -236,19 +236,21 @@ def test_acl_run_converges_and_a_rogue_robot_reaches_only_its_neighbourhood(tmp_
     )
     rogue_process = None
     try:
-        record = wait_for_agent_record(out, run, rogue_robot)
-        endpoint, run_id = record["connect"][0], record["run"]
+        # the rogue starts beside the run (it reads the server's address from its log): connected
+        # while the agents start, not after a fast lockstep run is over
         credentials = out / "credentials" / f"robot-{rogue_robot}.cred"
         report_path = tmp_path / "rogue.json"
+        server_log = out / "logs" / "sim_server.log"
         rogue_process = subprocess.Popen(
             [
-                *(sys.executable, __file__, "--endpoint", endpoint, "--run", run_id),
+                *(sys.executable, __file__, "--server-log", str(server_log)),
                 *("--robot", str(rogue_robot), "--count", str(count)),
                 *("--credentials", str(credentials), "--out", str(report_path)),
             ],
             stderr=subprocess.PIPE,
             text=True,
         )
+        endpoint, run_id = outside.server_address(server_log)
         # no session without the run's credentials: a wrong password, another robot's, none at all
         users = dict(line.split(":") for line in (out / "credentials" / "users.txt").read_text().splitlines())
         for user, password in [
@@ -302,11 +304,11 @@ def test_acl_run_converges_and_a_rogue_robot_reaches_only_its_neighbourhood(tmp_
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description="The rogue process of tests/test_acl.py")
-    parser.add_argument("--endpoint", required=True)
-    parser.add_argument("--run", required=True)
+    parser.add_argument("--server-log", type=Path, required=True, help="the run's sim_server.log")
     parser.add_argument("--robot", type=int, required=True)
     parser.add_argument("--count", type=int, required=True)
     parser.add_argument("--credentials", required=True)
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args()
-    rogue(args.endpoint, args.run, args.robot, args.count, args.credentials, args.out)
+    endpoint, run = outside.server_address(args.server_log)
+    rogue(endpoint, run, args.robot, args.count, args.credentials, args.out)

@@ -213,24 +213,6 @@ def fuzz(endpoint: str, run: str, count: int, steps: int, seed: int, out: Path) 
 # ----------------------------------------------------------------------------- the test
 
 
-def wait_for_agent_record(
-    out: Path, process: subprocess.Popen, robot: int = 0, timeout_s: float = 60.0
-) -> dict:
-    """The record of robot ``robot``'s agent once it is ready (run id, endpoint) in a run's results."""
-    path = out / "logs" / f"agent_{robot}.json"
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        assert process.poll() is None, f"run ended early: {process.communicate()}"
-        try:
-            record = json.loads(path.read_text())
-            if record.get("run") and record.get("ready_s") is not None:
-                return record
-        except (FileNotFoundError, json.JSONDecodeError):
-            pass
-        time.sleep(0.02)
-    raise AssertionError(f"agent {robot} did not come up")
-
-
 def test_a_run_survives_ten_thousand_malformed_replayed_and_forward_dated_samples(tmp_path):
     count, duration_s = 5, 45.0  # room for a fuzzer that joins late on a loaded machine
     data = yaml.safe_load((PROJECT_ROOT / "scenarios/thesis/cycle-local_consensus.yaml").read_text())
@@ -247,12 +229,11 @@ def test_a_run_survives_ten_thousand_malformed_replayed_and_forward_dated_sample
         text=True,
         cwd=PROJECT_ROOT,
     )
-    try:
-        record = wait_for_agent_record(out, run)
+    try:  # the fuzzer starts beside the run (the server's address from its log): it is there from tick 10
         sent_path = tmp_path / "sent.json"
         fuzzer = subprocess.run(
             [
-                *(sys.executable, __file__, "--endpoint", record["connect"][0], "--run", record["run"]),
+                *(sys.executable, __file__, "--server-log", str(out / "logs" / "sim_server.log")),
                 *("--count", str(count), "--steps", str(steps), "--seed", "7", "--out", str(sent_path)),
             ],
             capture_output=True,
@@ -294,6 +275,9 @@ def test_a_run_survives_ten_thousand_malformed_replayed_and_forward_dated_sample
     neighbours = {i: [(i - 1) % count, (i + 1) % count] for i in range(count)}  # the cycle
     for label in labels:  # the server: a callback per command, nothing to overflow
         assert stats[f"{label}_commands"] == sum(sent["cmd"][label]), (label, stats[f"{label}_commands"])
+    # an agent whose session the router dropped (lease expired: a process starved for a second on a
+    # loaded machine) and that reconnected lost what was in flight meanwhile; the server saw it
+    reconnected = {e["robot"] for e in stats["agent_events"] if e["event"] in ("gone", "back")}
     for i, agent in records.items():
         for stream, senders, genuine in (
             ("poses", [i], steps),  # one real pose per tick
@@ -302,6 +286,10 @@ def test_a_run_survives_ten_thousand_malformed_replayed_and_forward_dated_sample
             counted, key = agent[stream], "pose" if stream == "poses" else "msg"
             forged = {label: sum(sent[key][label][j] for j in senders) for label in labels}
             arrivals = sum(counted[name] for name in ("received", *labels, "overflow", "unread"))
+            if reconnected & {i, *senders}:
+                assert arrivals <= genuine + sum(forged.values()), (i, stream, counted, forged, genuine)
+                assert agent["sim_lost"] >= 2 or reconnected & set(senders), (i, agent["sim_lost"])
+                continue
             assert arrivals == genuine + sum(forged.values()), (i, stream, counted, forged, genuine)
             for label in labels:
                 assert forged[label] - counted["overflow"] <= counted[label] <= forged[label], (
@@ -322,11 +310,11 @@ def test_a_run_survives_ten_thousand_malformed_replayed_and_forward_dated_sample
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description="The fuzzer process of tests/test_fuzz.py")
-    parser.add_argument("--endpoint", required=True)
-    parser.add_argument("--run", required=True)
+    parser.add_argument("--server-log", type=Path, required=True, help="the run's sim_server.log")
     parser.add_argument("--count", type=int, required=True)
     parser.add_argument("--steps", type=int, required=True)
     parser.add_argument("--seed", type=int, required=True)
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args()
-    fuzz(args.endpoint, args.run, args.count, args.steps, args.seed, args.out)
+    endpoint, run = outside.server_address(args.server_log)
+    fuzz(endpoint, run, args.count, args.steps, args.seed, args.out)
