@@ -1,6 +1,8 @@
 """The ``swarm`` command line.
 
-RECORDING_FORMATS = ("mcap", "rerun")
+Exit status, one meaning each: 0 success met; 1 ran but did not meet it, or could not complete
+(a killed sim server, agents that never came up); 2 bad input only (nothing started); 130
+interrupted (Ctrl-C, SIGTERM; the partial results of the run are written first).
 """
 
 from __future__ import annotations
@@ -30,10 +32,7 @@ SWEEP_CONTROLLER_NAMES = [
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_SCENARIO = "scenarios/thesis/cycle-gnn.yaml"
 EXIT_SUCCESS, EXIT_NOT_MET, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
-<<<<<<< HEAD
 RECORDING_FORMATS = ("mcap", "rerun")
-=======
->>>>>>> 722e15f (Exit codes with one meaning each (a server killed from outside: 1; Ctrl-C: 130; a bad model file: one line, exit 2, before any process starts, both engines); server_stats.json written from the first tick; chaos: forge blind for a dead sender)
 
 
 class UsageError(Exception):
