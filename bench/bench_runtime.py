@@ -16,14 +16,18 @@ reads what the processes report:
 - real-time factor: simulated seconds per wall second of the control loop (realtime mode keeps 20 Hz
   when it is ~1 and there are no overruns; lockstep runs as fast as the swarm answers);
 - CPU per agent and per server tick (the processes' own CPU clocks, start-up excluded), and how many
-  cores other processes kept busy meanwhile (``/proc/stat`` minus this run's CPU time).
+  cores other processes kept busy meanwhile (``/proc/stat`` minus this run's CPU time);
+- the floor: per N, one more lockstep run (``--floor-duration``) in which a bare agent per robot
+  (``bench/bare_agent.py``: zenoh, msgpack, numpy, the same I/O) shadows the real one; both sets'
+  CPU per tick over the same window of ticks and their ratio, which holds on a loaded machine.
 
 Swarms from ``--large`` (100) robots on run with ``physics_hz`` 120 and again with 60 (10 solver
 iterations): at 240 Hz the physics of 100 robots alone needs about a core. The targets are checked
 on the first rate.
 
 Run: ``python bench/bench_runtime.py`` (writes ``bench/results/runtime.json`` and ``runtime.md``);
-``--counts 6 30 --modes lockstep --duration 5`` for a quick look. The machine's load average is
+``--counts 6 30 --modes lockstep --duration 5`` for a quick look; ``--counts 6 100 --floor-only`` re-measures
+only the floor section of the results (the other results in the file stay). The machine's load average is
 recorded with every run: the figures depend on what else runs.
 """
 
@@ -45,8 +49,10 @@ from pathlib import Path
 
 import psutil
 import yaml
+import zenoh
 from _output import add_output_arguments, output_dir, progress
 
+from swarm import wire
 from swarm.initial_poses import box_for
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -140,10 +146,144 @@ def _children_cpu_s() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def run_once(scenario_path: Path, out_dir: Path, steps: int, timeout_s: float, memory_at: int | None) -> dict:
-    """``memory_at``: sample the processes' memory once this many ticks are done (None: never; reading
-    ``/proc/<pid>/smaps_rollup`` of every agent stalls them briefly, which shows in the latency tail)."""
-    """``swarm run`` one scenario; returns its measurements (or an ``error``)."""
+def _cpu_s(processes: list[psutil.Process]) -> float:
+    """Summed user + system CPU seconds (every thread) of ``processes``, from ``/proc/<pid>/stat``."""
+    total = 0.0
+    for process in processes:
+        with contextlib.suppress(psutil.NoSuchProcess, psutil.AccessDenied):
+            times = process.cpu_times()
+            total += times.user + times.system
+    return total
+
+
+def _server_endpoint(cli: psutil.Process) -> tuple[str, str] | None:
+    """(endpoint, run id) from the sim server's command line, once it runs."""
+    with contextlib.suppress(psutil.NoSuchProcess):
+        for child in cli.children(recursive=True):
+            with contextlib.suppress(psutil.NoSuchProcess, psutil.AccessDenied):
+                line = child.cmdline()
+                if "sim_server" in line and "--listen" in line and "--run" in line:
+                    return line[line.index("--listen") + 1], line[line.index("--run") + 1]
+    return None
+
+
+class Floor:
+    """Bare agents (``bench/bare_agent.py``) beside the real ones of one run, and the CPU per tick of
+    both sets over the same window of ticks (``/proc`` CPU times of every agent process, sampled when
+    the server's trajectory passes ``start_tick``, once every bare agent is up, and ``end_tick``:
+    start-up and exit excluded)."""
+
+    def __init__(self, count: int, log_dir: Path, start_tick: int, end_tick: int):
+        self.count, self.log_dir = count, log_dir
+        self.start_tick, self.end_tick = start_tick, end_tick
+        self.process: subprocess.Popen | None = None
+        self.session = None
+        self.commands = 0  # bare agents' commands received (by this process: a consumer, as the sim is)
+        self.commands_invalid = 0  # of those, rejected by the real decoder (wire.decode_command)
+        self.samples: list[dict] = []
+        self._ready = False
+
+    def start(self, endpoint: str, run: str) -> None:
+        """Start the bare agents (they retry until the sim's router listens), then connect a consumer of
+        their commands (``zenoh.ZError`` until the router listens: call again)."""
+        if self.process is None:
+            env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
+            command = [sys.executable, str(Path(__file__).resolve().parent / "bare_agent.py")]
+            command += ["--robots", f"0-{self.count - 1}", "--connect", endpoint, "--run", run]
+            command += ["--log-dir", str(self.log_dir)]
+            self.process = subprocess.Popen(
+                command, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+            )
+        config = zenoh.Config()
+        config.insert_json5("mode", '"client"')
+        config.insert_json5("connect/endpoints", json.dumps([endpoint]))
+        config.insert_json5("scouting/multicast/enabled", "false")
+        self.session = zenoh.open(config)
+
+        def count(sample: zenoh.Sample) -> None:
+            self.commands += 1
+            self.commands_invalid += wire.decode_command(sample.payload.to_bytes()) is None
+
+        self.subscriber = self.session.declare_subscriber(f"swarm/{run}/floor/*/cmd", count)
+
+    def _bare_ready(self) -> bool:
+        """Every bare agent has declared its subscriptions and publishers (its ready record is written)."""
+        if not self._ready:
+            self._ready = len(list(self.log_dir.glob("floor_*.json"))) == self.count
+        return self._ready
+
+    def poll(self, cli: psutil.Process, ticks: int) -> None:
+        """Sample both sets' CPU once the run passes each window edge."""
+        if self.session is None or len(self.samples) == 2:
+            return
+        if ticks < (self.start_tick if not self.samples else self.end_tick):
+            return
+        if not self.samples and not self._bare_ready():
+            return  # the window opens once the bare agents are up too
+        real = _agent_processes(cli)
+        bare = psutil.Process(self.process.pid).children()
+        commands = self.commands
+        self.samples.append(
+            {"tick": ticks, "real_cpu_s": _cpu_s(real), "bare_cpu_s": _cpu_s(bare), "bare_commands": commands}
+            | {"real_agents": len(real), "bare_agents": len(bare)}
+        )
+
+    def finish(self) -> dict:
+        if self.process is not None:
+            try:
+                self.process.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self.process.terminate()
+                self.process.wait(timeout=10)
+        if self.session is not None:
+            self.session.close()
+        records = [json.loads(p.read_text()) for p in sorted(self.log_dir.glob("floor_*.json"))]
+        ran = [r for r in records if r.get("ticks") and r.get("cpu_s") is not None]
+        self_ms = [1e3 * (r["cpu_s"] - r["cpu_ready_s"]) / r["ticks"] for r in ran]
+        result: dict = {
+            "bare_agents_ran": len(ran),
+            "bare_self_cpu_ms_per_tick": round(sum(self_ms) / len(self_ms), 4) if self_ms else None,
+            "bare_commands": self.commands,
+            "bare_commands_invalid": self.commands_invalid,
+        }
+        if len(self.samples) < 2:
+            return result | {"error": "the run ended before the CPU window closed"}
+        first, last = self.samples
+        if (
+            min(first["bare_agents"], last["bare_agents"], first["real_agents"], last["real_agents"])
+            < self.count
+        ):
+            return result | {"error": f"agents missing from the CPU window: {self.samples}"}
+        ticks = last["tick"] - first["tick"]
+        bare_ticks = (last["bare_commands"] - first["bare_commands"]) / max(last["bare_agents"], 1)
+        real_ms = 1e3 * (last["real_cpu_s"] - first["real_cpu_s"]) / (ticks * max(last["real_agents"], 1))
+        bare_ms = (
+            1e3 * (last["bare_cpu_s"] - first["bare_cpu_s"]) / (bare_ticks * max(last["bare_agents"], 1))
+        )
+        return result | {
+            "window_ticks": ticks,
+            "bare_ticks_in_window": round(bare_ticks, 1),
+            "real_agents": last["real_agents"],
+            "bare_agents": last["bare_agents"],
+            "real_cpu_ms_per_tick": round(real_ms, 4),
+            "bare_cpu_ms_per_tick": round(bare_ms, 4),
+            "real_over_bare": round(real_ms / bare_ms, 3),
+        }
+
+
+def run_once(
+    scenario_path: Path,
+    out_dir: Path,
+    steps: int,
+    timeout_s: float,
+    memory_at: int | None,
+    floor: Floor | None = None,
+) -> dict:
+    """``swarm run`` one scenario; returns its measurements (or an ``error``).
+
+    ``memory_at``: sample the processes' memory once this many ticks are done (None: never; reading
+    ``/proc/<pid>/smaps_rollup`` of every agent stalls them briefly, which shows in the latency tail).
+    ``floor``: run bare agents beside the real ones and measure both (``result["floor"]``)."""
     load_before = os.getloadavg()[0]
     machine_before, children_before = _cpu_busy_cores(), _children_cpu_s()
     started_s = time.perf_counter()
@@ -164,6 +304,11 @@ def run_once(scenario_path: Path, out_dir: Path, steps: int, timeout_s: float, m
             ticks = trajectory.read_bytes().count(b"\n") if trajectory.exists() else 0
             if ticks and cli_first_tick_s is None:
                 cli_first_tick_s = time.perf_counter() - started_s
+            if floor is not None:
+                if floor.session is None and (found := _server_endpoint(cli)) is not None:
+                    with contextlib.suppress(zenoh.ZError):  # not listening yet: again at the next poll
+                        floor.start(*found)
+                floor.poll(cli, ticks)
             if not memory and memory_at is not None and ticks >= memory_at:
                 memory = _memory_mib(_agent_processes(cli))
                 server_pss = _process_mib(cli, "-m sim_server")
@@ -174,7 +319,10 @@ def run_once(scenario_path: Path, out_dir: Path, steps: int, timeout_s: float, m
     except TimeoutError:
         process.terminate()
         process.communicate(timeout=30)
+        if floor is not None:
+            floor.finish()
         return {"error": f"timed out after {timeout_s:g} s"}
+    floor_result = floor.finish() if floor is not None else None
     if process.returncode not in (0, 1):
         return {"error": f"swarm run exited {process.returncode}: {stderr.strip()[-400:]}"}
     busy, total = (after - before for after, before in zip(_cpu_busy_cores(), machine_before, strict=True))
@@ -224,7 +372,7 @@ def run_once(scenario_path: Path, out_dir: Path, steps: int, timeout_s: float, m
         "other_cores": round(max(0.0, machine_cores - run_cores), 2),
         "load_avg_1min_before": round(load_before, 2),
         "load_avg_1min_after": round(os.getloadavg()[0], 2),
-    }
+    } | ({} if floor_result is None else {"floor": floor_result})
 
 
 def _fmt(value: object, digits: int = 2) -> str:
@@ -272,6 +420,8 @@ def targets_met(results: list[dict]) -> dict[str, bool | None]:
 
 
 def markdown(report: dict) -> str:
+    if "settings" not in report:
+        return "\n".join(floor_markdown(report)) + "\n"
     settings = report["settings"]
     lines = [
         f"`python bench/bench_runtime.py`: {settings['duration_s']:g} s of sim per run, 20 Hz control, local"
@@ -297,10 +447,47 @@ def markdown(report: dict) -> str:
             f" | {_fmt(r['other_cores'])} |"
         )
     lines += ["", "| target | measured | met |", "|---|---|---|"]
-    for name, check in report["targets"].items():
+    for name, check in report.get("targets", {}).items():
         met = {True: "yes", False: "**no**", None: "-"}[check["met"]]
         lines.append(f"| {name} {check['target']:g} | {_fmt(check['measured'])} | {met} |")
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines + floor_markdown(report)) + "\n"
+
+
+def floor_markdown(report: dict) -> list[str]:
+    """The floor section: real agent vs bare agent (``bench/bare_agent.py``), same run, same ticks."""
+    if not report.get("floor"):
+        return []
+    settings = report.get("floor_settings", {})
+    lines = [
+        "",
+        "### Agent CPU against the floor",
+        "",
+        f"`python bench/bench_runtime.py` (alone: `--floor-only`): one lockstep run per N of"
+        f" {settings.get('duration_s', 0):g} s of sim in which a bare agent per robot (`bench/bare_agent.py`:"
+        " zenoh, msgpack and numpy only; the same pose key, neighbour count and payload sizes) runs beside"
+        " the real one. CPU per tick: user + system time of every agent process (all threads, /proc) over"
+        " the same window of ticks (the middle 60%: start-up and exit excluded), per agent. 1-min load"
+        f" average {report.get('floor_load_avg_before')} before the first run (the ratio is the figure"
+        " that holds on a loaded machine).",
+        "",
+        "| N | physics Hz | window ticks | real agent CPU ms/tick | bare agent CPU ms/tick | real / bare"
+        " | load before | load after |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in report["floor"]:
+        f = r.get("floor", {})
+        if "error" in r or "error" in f:
+            lines.append(
+                f"| {r['robots']} | {_fmt(r.get('physics_hz'), 0)} | error: {r.get('error') or f['error']} |"
+            )
+            continue
+        lines.append(
+            f"| {r['robots']} | {_fmt(r['physics_hz'], 0)} | {f['window_ticks']}"
+            f" | {_fmt(f['real_cpu_ms_per_tick'], 3)} | {_fmt(f['bare_cpu_ms_per_tick'], 3)}"
+            f" | {_fmt(f['real_over_bare'])} | {_fmt(r['load_avg_1min_before'])}"
+            f" | {_fmt(r['load_avg_1min_after'])} |"
+        )
+    return lines
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -322,6 +509,18 @@ def main(argv: list[str] | None = None) -> int:
         help="sim.physics_hz of large swarms, one run each (default: 120 60; the targets use the first)",
     )
     parser.add_argument("--solver-iterations", type=int, help="scenario sim.solver_iterations")
+    parser.add_argument(
+        "--floor-duration",
+        type=float,
+        default=20.0,
+        help="simulated seconds of the lockstep run per N in which bare agents (bench/bare_agent.py) run"
+        " beside the real ones (default 20; 0: none)",
+    )
+    parser.add_argument(
+        "--floor-only",
+        action="store_true",
+        help="only the floor runs: replace the floor section of --out, keep its other results",
+    )
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--timeout", type=float, default=300.0, help="seconds per run")
     add_output_arguments(parser)
@@ -340,22 +539,31 @@ def main(argv: list[str] | None = None) -> int:
         unit="run",
     )
 
-    results, load_before = [], os.getloadavg()[0]
+    results, floors, load_before = [], [], os.getloadavg()[0]
     keep = args.keep or Path(tempfile.gettempdir()) / "bench-runtime-failed"
     memory_keys = ("agent_pss_mib", "agent_uss_mib", "agent_rss_mib", "agents_sampled")
     memory_keys += ("server_pss_mib", "launcher_pss_mib")
     with tempfile.TemporaryDirectory(prefix="bench-runtime-") as work:
 
-        def run(count: int, mode: str, physics_hz: float | None, duration_s: float, memory: bool) -> dict:
+        def run(
+            count: int,
+            mode: str,
+            physics_hz: float | None,
+            duration_s: float,
+            memory: bool,
+            floor: bool = False,
+        ) -> dict:
             data = scenario_data(count, mode, duration_s, physics_hz, args.solver_iterations, args.seed)
             data["name"] += (f"-{physics_hz:g}hz" if physics_hz is not None else "") + (
-                "-memory" if memory else ""
+                "-memory" if memory else "-floor" if floor else ""
             )
             path = Path(work) / f"{data['name']}.yaml"
             path.write_text(yaml.safe_dump(data))
             steps = round(duration_s / 0.05)
+            edge = max(10, steps // 5)  # the trajectory's tick count lags the agents' by a few ticks
+            bare = Floor(count, Path(work) / f"{data['name']}-bare", edge, steps - edge) if floor else None
             result = run_once(
-                path, Path(work) / data["name"], steps, args.timeout, steps // 3 if memory else None
+                path, Path(work) / data["name"], steps, args.timeout, steps // 3 if memory else None, bare
             )
             if args.keep or "error" in result:
                 kept = keep / f"{data['name']}-{time.strftime('%H%M%S')}"
@@ -372,6 +580,14 @@ def main(argv: list[str] | None = None) -> int:
             }
 
         for count in args.counts:
+            if args.floor_duration > 0:
+                large = count >= args.large
+                physics_hz = args.large_physics_hz[0] if large else args.physics_hz
+                result = run(count, "lockstep", physics_hz, args.floor_duration, False, True)
+                floors.append(result)
+                print(json.dumps(result), flush=True)
+            if args.floor_only:
+                continue
             # Memory in a run of its own: reading every agent's smaps stalls them, which would show
             # in the latency tail of the timed runs.
             large = count >= args.large
@@ -382,6 +598,15 @@ def main(argv: list[str] | None = None) -> int:
                     result.update({key: memory.get(key) for key in memory_keys})
                     results.append(result)
                     print(json.dumps(result), flush=True)
+    if args.floor_only:  # keep every other result of the file
+        report = json.loads(args.out.read_text()) if args.out.exists() else {"results": []}
+        report.update(floor=floors, floor_load_avg_before=round(load_before, 2))
+        report["floor_settings"] = {"duration_s": args.floor_duration, "seed": args.seed}
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(report, indent=2) + "\n")
+        args.out.with_suffix(".md").write_text(markdown(report))
+        print(markdown(report))
+        return 0 if all("error" not in f and "error" not in f.get("floor", {}) for f in floors) else 1
     report = {
         "benchmark": "runtime",
         "settings": {
@@ -400,6 +625,9 @@ def main(argv: list[str] | None = None) -> int:
         },
         "load_avg_before": round(load_before, 2),
         "results": results,
+        "floor": floors,
+        "floor_load_avg_before": round(load_before, 2),
+        "floor_settings": {"duration_s": args.floor_duration, "seed": args.seed},
     }
     first_large_hz = args.large_physics_hz[0]
     report["targets"] = targets_met(

@@ -1,0 +1,206 @@
+"""The floor of a robot agent's per-tick CPU: the same I/O as ``robot_agent``, nothing else.
+
+A bare agent uses only zenoh, msgpack and numpy (no project code at all): a client session to the
+sim server's router; it fetches ``swarm/<run>/config/<i>`` once (for its graph neighbours, the
+mode, the robot's offset and the run's length), subscribes to its own pose
+``swarm/<run>/robot/<i>/pose`` (the real key: it shadows the real agent of robot i) and to its
+neighbours' messages, and each tick decodes the pose and every message that came (msgpack), runs
+local consensus (thesis eq. 3.1) as a small numpy forward, and puts a message and a command of the
+real payload layout and size (msgpack maps ``{v, k, m: 16 bytes}`` and ``{v, k, l, r}``).
+
+It publishes under ``swarm/<run>/floor/<i>/msg`` and ``.../cmd`` (same key lengths as
+``agent/<i>/msg``; nothing of the real run listens there), so it can run beside the real agents of
+the same run: ``bench/bench_runtime.py`` starts one per robot and compares the CPU per tick of both
+over the same ticks, which holds on a loaded machine where absolute figures do not.
+
+``python bench/bare_agent.py --robots 0-99 --connect tcp/127.0.0.1:7447 --run RUN --log-dir DIR``:
+one process per robot, forked from one launcher before any session exists (as ``robot_agent``
+does); each writes ``DIR/floor_<i>.json`` (ticks, CPU at ready and at exit). It exits after the
+run's last tick, on SIGTERM, or when its launcher dies.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import ctypes
+import json
+import math
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+
+import msgpack
+import numpy as np
+import zenoh
+
+POSE_RING, MESSAGE_RING = 4, 16  # as robot_agent.agent
+_PR_SET_PDEATHSIG = 1
+
+
+class _Stop(BaseException):
+    """Raised by the SIGTERM handler into a blocking ``recv``."""
+
+
+def _stop(*_: object) -> None:
+    raise _Stop
+
+
+def _config(connect: list[str]) -> zenoh.Config:
+    config = zenoh.Config()
+    config.insert_json5("mode", '"client"')
+    config.insert_json5("connect/endpoints", json.dumps(connect))
+    config.insert_json5("scouting/multicast/enabled", "false")
+    config.insert_json5("transport/link/tx/lease", "1000")
+    return config
+
+
+def _fetch_config(session: zenoh.Session, key: str, deadline_s: float) -> dict | None:
+    while time.monotonic() < deadline_s:
+        for reply in session.get(key, timeout=1.0):
+            if reply.ok is not None:
+                return msgpack.unpackb(reply.ok.payload.to_bytes(), raw=False)
+        time.sleep(0.05)
+    return None
+
+
+def run_agent(robot: int, run: str, connect: list[str], log_dir: Path, timeout_s: float) -> int:
+    """One bare agent; returns its exit status (0: it ran to the end or was stopped)."""
+    started_s = time.monotonic()
+    signal.signal(signal.SIGTERM, _stop)
+    ctypes.CDLL(None).prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)  # die with the launcher
+    prefix = f"swarm/{run}"
+    record: dict = {"robot": robot, "role": "floor", "pid": os.getpid(), "ticks": 0}
+    path = log_dir / f"floor_{robot}.json"
+    session = None
+    while session is None and time.monotonic() - started_s < timeout_s:
+        try:
+            session = zenoh.open(_config(connect))
+        except zenoh.ZError:
+            time.sleep(0.05)
+    if session is None:
+        record["exit_reason"] = "could not connect"
+        path.write_text(json.dumps(record) + "\n")
+        return 1
+    try:
+        config = _fetch_config(session, f"{prefix}/config/{robot}", started_s + timeout_s)
+        if config is None:
+            record["exit_reason"] = "no config"
+            return 1
+        neighbours = list(config["neighbours"])
+        offset_m = float(config["robot_params"]["offset_m"])
+        half_axle_m = float(config["robot_params"]["half_axle_m"])
+        v_max_mps = float(config["robot_params"]["v_max_mps"])
+        gain = float(config["gain"])
+        final_tick = round(config["scenario"]["sim"]["duration_s"] / config["control_period_s"]) - 1
+        congestion = (
+            zenoh.CongestionControl.BLOCK if config["mode"] == "lockstep" else zenoh.CongestionControl.DROP
+        )
+        ring = zenoh.handlers.RingChannel
+        pose_sub = session.declare_subscriber(f"{prefix}/robot/{robot}/pose", ring(POSE_RING))
+        msg_subs = [
+            session.declare_subscriber(f"{prefix}/floor/{j}/msg", ring(MESSAGE_RING)) for j in neighbours
+        ]
+        msg_pub = session.declare_publisher(
+            f"{prefix}/floor/{robot}/msg", congestion_control=congestion, express=True
+        )
+        cmd_pub = session.declare_publisher(
+            f"{prefix}/floor/{robot}/cmd", congestion_control=congestion, express=True
+        )
+        record.update(neighbours=neighbours, cpu_ready_s=time.process_time())
+        path.write_text(json.dumps(record) + "\n")
+        state = {"ticks": 0, "tick": -1, "first_tick": None}
+        unpackb, packb = msgpack.unpackb, msgpack.packb
+        latest: list[bytes | None] = [None] * len(neighbours)
+        reason = "done"
+        try:
+            while state["tick"] < final_tick:
+                sample = pose_sub.recv()
+                while (newer := pose_sub.try_recv()) is not None:
+                    sample = newer
+                pose = unpackb(sample.payload.to_bytes())
+                tick = state["tick"] = pose["k"]
+                if state["first_tick"] is None:
+                    state["first_tick"] = tick
+                for index, subscriber in enumerate(msg_subs):
+                    while (message := subscriber.try_recv()) is not None:
+                        latest[index] = unpackb(message.payload.to_bytes())["m"]
+                heard = [raw for raw in latest if raw is not None]
+                theta = pose["th"]
+                c, s = math.cos(theta), math.sin(theta)
+                point = np.array([pose["x"] + offset_m * c, pose["y"] + offset_m * s])
+                if heard:
+                    points = np.frombuffer(b"".join(heard), dtype="<f8").reshape(-1, 2)
+                    u = -gain * (len(heard) * point - points.sum(axis=0))
+                else:
+                    u = np.zeros(2)
+                v, w = c * u[0] + s * u[1], (-s * u[0] + c * u[1]) / offset_m
+                left, right = v - half_axle_m * w, v + half_axle_m * w
+                scale = min(1.0, v_max_mps / max(abs(left), abs(right), 1e-12))
+                msg_pub.put(packb({"v": 1, "k": tick, "m": point.tobytes()}))
+                cmd_pub.put(packb({"v": 1, "k": tick, "l": float(left * scale), "r": float(right * scale)}))
+                state["ticks"] += 1
+        except _Stop:
+            reason = "stopped"
+        record.update(ticks=state["ticks"], first_tick=state["first_tick"], last_tick=state["tick"])
+        record["exit_reason"] = reason
+        return 0
+    finally:
+        record["cpu_s"] = time.process_time()
+        session.close()
+        path.write_text(json.dumps(record) + "\n")
+
+
+def parse_robots(text: str) -> list[int]:
+    """``"0-5"`` or ``"0,2,4"`` -> robot ids."""
+    robots: list[int] = []
+    for part in text.split(","):
+        low, _, high = part.partition("-")
+        robots += range(int(low), int(high or low) + 1)
+    return robots
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--robots", type=parse_robots, required=True, help="robot ids: 0-99 or 0,2,4")
+    parser.add_argument("--connect", required=True, help="Zenoh endpoint of the sim server")
+    parser.add_argument("--run", required=True, help="run id (the key prefix swarm/<run>/)")
+    parser.add_argument("--log-dir", type=Path, required=True, help="write floor_<i>.json here")
+    parser.add_argument("--timeout", type=float, default=60.0, help="seconds to connect and get the config")
+    args = parser.parse_args(argv)
+    args.log_dir.mkdir(parents=True, exist_ok=True)
+    children = []
+    sys.stdout.flush()
+    sys.stderr.flush()
+    for robot in args.robots:  # fork before any session exists (forking after one hangs the child)
+        pid = os.fork()
+        if pid == 0:
+            code = 1
+            try:
+                code = run_agent(robot, args.run, [args.connect], args.log_dir, args.timeout)
+            finally:
+                os._exit(code)
+        children.append(pid)
+
+    def forward(*_: object) -> None:
+        for pid in children:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGTERM)
+
+    signal.signal(signal.SIGTERM, forward)
+    worst = 0
+    for pid in children:
+        while True:
+            try:
+                _, status = os.waitpid(pid, 0)
+                break
+            except InterruptedError:
+                continue
+        worst = max(worst, os.waitstatus_to_exitcode(status) != 0)
+    return worst
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,34 @@
+"""The floor benchmark (bench/bare_agent.py beside the real agents of one ``swarm run``): real processes."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "bench"))
+
+import bench_runtime
+
+
+def test_bare_agents_shadow_every_tick_with_the_real_payloads(tmp_path: Path) -> None:
+    count, duration_s = 3, 6.0
+    steps = round(duration_s / 0.05)
+    data = bench_runtime.scenario_data(count, "lockstep", duration_s, None, None, seed=2)
+    scenario = tmp_path / "floor.yaml"
+    scenario.write_text(bench_runtime.yaml.safe_dump(data))
+    floor = bench_runtime.Floor(count, tmp_path / "bare", steps // 5, steps - steps // 5)
+    result = bench_runtime.run_once(scenario, tmp_path / "run", steps, 200.0, None, floor)
+    assert "error" not in result, result
+    measured = result["floor"]
+    assert "error" not in measured, measured
+    assert measured["bare_agents_ran"] == measured["bare_agents"] == measured["real_agents"] == count
+    # every command a bare agent put passes the real decoder: the same payload layout as robot_agent's
+    assert measured["bare_commands"] > 0 and measured["bare_commands_invalid"] == 0
+    records = [bench_runtime.json.loads(p.read_text()) for p in (tmp_path / "bare").glob("floor_*.json")]
+    assert sorted(r["last_tick"] for r in records) == [steps - 1] * count
+    assert all(r["exit_reason"] == "done" for r in records)
+    # the window opens once the bare agents are up: in it they answered every tick (lockstep: no pose
+    # is skipped while the real agents hold the server), so both sets' CPU is per the same ticks
+    assert measured["window_ticks"] > 0
+    assert abs(measured["bare_ticks_in_window"] - measured["window_ticks"]) <= 3
+    assert measured["real_cpu_ms_per_tick"] > 0 and measured["bare_cpu_ms_per_tick"] > 0
