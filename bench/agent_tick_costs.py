@@ -1,0 +1,186 @@
+"""What the Python side of one agent tick costs, piece by piece, against the bare agent's pieces.
+
+Each piece is timed on its own in this process (``timeit``, the best of ``--repeats`` rounds: the
+figure least disturbed by other load), with the payloads a real run carries (local consensus, message
+dimension 2, ``--neighbours`` neighbours, no link faults). The real agent's pieces call the functions
+``robot_agent`` calls (``swarm.wire``, ``swarm.faults.select_message``, ``swarm.onboard``); the
+per-neighbour bookkeeping of ``RobotAgent._drain_messages`` and ``_loop`` is timed through a real
+``RobotAgent`` where it is a method, and as the same statements where it is inline. Zenoh's own
+work (``recv``, ``put``, its threads) is the floor both agents share and is not timed here
+(``bench/bench_runtime.py`` measures the whole).
+
+Run: ``python bench/agent_tick_costs.py`` (prints a table; ``--json FILE`` writes it).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+import timeit
+from pathlib import Path
+
+import msgpack
+import numpy as np
+import zenoh
+
+from robot_agent.agent import AgentOptions, RobotAgent
+from swarm import wire
+from swarm.faults import select_message
+from swarm.onboard import OnboardLocalConsensus, wheels_one
+from swarm.robot import RobotParams
+
+
+class _Channel:
+    """A stand-in for a Zenoh ring channel holding samples (to time the Python around ``try_recv``)."""
+
+    class _Sample:
+        def __init__(self, data: bytes):
+            self.payload = zenoh.ZBytes(data)
+
+    def __init__(self, payloads: list[bytes]):
+        self.samples = [self._Sample(p) for p in payloads]
+
+    def try_recv(self):
+        return self.samples.pop() if self.samples else None
+
+
+def costs(neighbours: int, repeats: int, number: int) -> dict[str, float]:
+    """Microseconds per tick of each piece."""
+    params = RobotParams()
+    controller = OnboardLocalConsensus(params, 1.0)
+    tick = 1234
+    pose_bytes = wire.encode_pose(tick, 61.7, (1.25, -0.5, 0.3))
+    msg_bytes = [wire.encode_message(tick - 1, (0.1 * j, -0.2 * j)) for j in range(neighbours)]
+    points = [(0.1 * j, -0.2 * j) for j in range(neighbours)]
+    weights = [1.0] * neighbours
+
+    def best(statement, per: int = 1) -> float:
+        return 1e6 * min(timeit.repeat(statement, number=number, repeat=repeats)) / number / per
+
+    agent = RobotAgent(AgentOptions(robot=0, run="r", connect=[]))
+    agent._dim = 2
+    ids = list(range(1, neighbours + 1))
+    for j in ids:
+        agent._inbox[j] = {}
+
+    def drain() -> None:  # RobotAgent._drain_messages over channels holding one message each
+        agent._msg_subs = {j: _Channel([msg_bytes[i]]) for i, j in enumerate(ids)}
+        agent._newest_message_tick = {}
+        agent._drain_messages()
+
+    def channels_only() -> None:  # what drain() costs without the method: building the stand-ins
+        {j: _Channel([msg_bytes[i]]) for i, j in enumerate(ids)}
+
+    boxes = {j: {tick - 1: points[i]} for i, j in enumerate(ids)}
+
+    def select() -> None:  # the per-neighbour selection of RobotAgent._loop (no faults), as written there
+        heard, messages = [], []
+        for j in ids:
+            box = boxes[j]
+            came = lambda k, box=box: k in box  # noqa: E731
+            sent = select_message(tick, 0, 1, came)
+            values = None if sent is None else box[sent]
+            if values is not None:
+                heard.append(j)
+                messages.append(values)
+
+    def prune() -> None:  # RobotAgent._loop: drop what can no longer be used
+        oldest = tick - 1
+        for box in boxes.values():
+            for k in [k for k in box if k < oldest]:
+                del box[k]
+
+    samples: list[float] = []
+
+    def clocks() -> None:  # two perf_counter calls and the per-tick list append of the compute time
+        start = time.perf_counter()
+        samples.append(time.perf_counter() - start)
+
+    liveliness = [_Channel([]) for _ in ids]
+
+    def drain_liveliness() -> None:  # RobotAgent._drain_liveliness with nothing queued (stand-ins)
+        for channel in liveliness:
+            while channel.try_recv() is not None:
+                pass
+
+    session = zenoh.open(wire.session_config("peer"))
+    rings = [session.declare_subscriber(f"cost/{j}", zenoh.handlers.RingChannel(16)) for j in ids]
+
+    def zenoh_try_recv_empty() -> None:  # the real channel, nothing queued (each liveliness channel)
+        for ring in rings:
+            ring.try_recv()
+
+    offset, half = params.offset_m, params.half_axle_m
+    unpackb, packb = msgpack.unpackb, msgpack.packb
+    raws = [m[-16:] for m in msg_bytes]
+
+    def bare_forward() -> None:  # bench/bare_agent.py: numpy consensus and wheels
+        c, s = math.cos(0.3), math.sin(0.3)
+        point = np.array([1.25 + offset * c, -0.5 + offset * s])
+        u = -1.0 * (len(raws) * point - np.frombuffer(b"".join(raws), dtype="<f8").reshape(-1, 2).sum(axis=0))
+        v, w = c * u[0] + s * u[1], (-s * u[0] + c * u[1]) / offset
+        left, right = v - half * w, v + half * w
+        min(1.0, 0.5 / max(abs(left), abs(right), 1e-12))
+
+    result = {
+        "real: decode_pose (validated, Pose dataclass)": best(lambda: wire.decode_pose(pose_bytes)),
+        f"real: decode_message_values x{neighbours} (validated)": best(
+            lambda: [wire.decode_message_values(m, 2) for m in msg_bytes]
+        ),
+        f"real: _drain_messages x{neighbours} (decode + inbox bookkeeping)": best(drain)
+        - best(channels_only),
+        f"real: per-neighbour selection x{neighbours} (select_message)": best(select),
+        "real: inbox prune": best(prune),
+        "real: act_floats (local consensus)": best(
+            lambda: controller.act_floats(1.25, -0.5, 0.3, points, weights)
+        ),
+        "real: wheels_one": best(lambda: wheels_one((0.1, 0.2), 0.3, params)),
+        "real: encode_message + encode_command": best(
+            lambda: (wire.encode_message(tick, (0.1, 0.2)), wire.encode_command(tick, (0.1, 0.2)))
+        ),
+        "real: perf_counter x2 + compute_s append": best(clocks),
+        f"real: _drain_liveliness x{neighbours} (Python loop, stand-in channels)": best(drain_liveliness),
+        f"real: zenoh try_recv on {neighbours} empty channels (liveliness)": best(zenoh_try_recv_empty),
+        "bare: unpackb pose": best(lambda: unpackb(pose_bytes)),
+        f"bare: unpackb x{neighbours} messages": best(lambda: [unpackb(m)["m"] for m in msg_bytes]),
+        "bare: numpy forward + wheels": best(bare_forward),
+        "bare: packb message + command": best(
+            lambda: (
+                packb({"v": 1, "k": tick, "m": raws[0]}),
+                packb({"v": 1, "k": tick, "l": 0.1, "r": 0.2}),
+            )
+        ),
+    }
+    session.close()
+    return {name: round(value, 2) for name, value in result.items()}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--neighbours", type=int, default=4)
+    parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--number", type=int, default=2000)
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args(argv)
+    table = costs(args.neighbours, args.repeats, args.number)
+    real = sum(v for k, v in table.items() if k.startswith("real:") and "_drain_messages" not in k)
+    real -= table[f"real: decode_message_values x{args.neighbours} (validated)"]  # inside _drain_messages
+    real += table[f"real: _drain_messages x{args.neighbours} (decode + inbox bookkeeping)"]
+    real -= table[f"real: _drain_liveliness x{args.neighbours} (Python loop, stand-in channels)"]
+    bare = sum(v for k, v in table.items() if k.startswith("bare:"))
+    for name, value in table.items():
+        print(f"{value:8.2f} us  {name}")
+    print(f"{real:8.2f} us  real agent, Python per tick (the pieces above, once each)")
+    print(f"{bare:8.2f} us  bare agent, Python per tick")
+    if args.json:
+        args.json.write_text(
+            json.dumps({"us": table, "real_us": round(real, 2), "bare_us": round(bare, 2)}, indent=1)
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
