@@ -170,8 +170,8 @@ def _server_endpoint(cli: psutil.Process) -> tuple[str, str] | None:
 class Floor:
     """Bare agents (``bench/bare_agent.py``) beside the real ones of one run, and the CPU per tick of
     both sets over the same window of ticks (``/proc`` CPU times of every agent process, sampled when
-    the server's trajectory passes ``start_tick``, once every bare agent is up, and ``end_tick``:
-    start-up and exit excluded)."""
+    the real agents have sent ``start_tick`` commands each, once every bare agent is up, and
+    ``end_tick``: start-up and exit excluded; each set's ticks are the commands it sent meanwhile)."""
 
     def __init__(self, count: int, log_dir: Path, start_tick: int, end_tick: int):
         self.count, self.log_dir = count, log_dir
@@ -180,6 +180,7 @@ class Floor:
         self.session = None
         self.commands = 0  # bare agents' commands received (by this process: a consumer, as the sim is)
         self.commands_invalid = 0  # of those, rejected by the real decoder (wire.decode_command)
+        self.real_commands = 0  # the real agents' commands, counted the same way: the window's tick clock
         self.samples: list[dict] = []
         self._ready = False
 
@@ -204,7 +205,13 @@ class Floor:
             self.commands += 1
             self.commands_invalid += wire.decode_command(sample.payload.to_bytes()) is None
 
-        self.subscriber = self.session.declare_subscriber(f"swarm/{run}/floor/*/cmd", count)
+        def count_real(_sample: zenoh.Sample) -> None:
+            self.real_commands += 1
+
+        self.subscribers = [
+            self.session.declare_subscriber(f"swarm/{run}/floor/*/cmd", count),
+            self.session.declare_subscriber(f"swarm/{run}/robot/*/cmd", count_real),
+        ]
 
     def _bare_ready(self) -> bool:
         """Every bare agent has declared its subscriptions and publishers (its ready record is written)."""
@@ -212,20 +219,23 @@ class Floor:
             self._ready = len(list(self.log_dir.glob("floor_*.json"))) == self.count
         return self._ready
 
-    def poll(self, cli: psutil.Process, ticks: int) -> None:
-        """Sample both sets' CPU once the run passes each window edge."""
+    def poll(self, cli: psutil.Process) -> None:
+        """Sample both sets' CPU once the run passes each window edge (ticks: the real agents' commands
+        received per agent; the trajectory's line count lags by tens of ticks at N = 100)."""
         if self.session is None or len(self.samples) == 2:
             return
+        ticks = self.real_commands / self.count
         if ticks < (self.start_tick if not self.samples else self.end_tick):
             return
         if not self.samples and not self._bare_ready():
             return  # the window opens once the bare agents are up too
         real = _agent_processes(cli)
         bare = psutil.Process(self.process.pid).children()
-        commands = self.commands
+        commands, real_commands = self.commands, self.real_commands
+        real_cpu_s, bare_cpu_s = _cpu_s(real), _cpu_s(bare)
         self.samples.append(
-            {"tick": ticks, "real_cpu_s": _cpu_s(real), "bare_cpu_s": _cpu_s(bare), "bare_commands": commands}
-            | {"real_agents": len(real), "bare_agents": len(bare)}
+            {"real_cpu_s": real_cpu_s, "bare_cpu_s": bare_cpu_s, "bare_commands": commands}
+            | {"real_commands": real_commands, "real_agents": len(real), "bare_agents": len(bare)}
         )
 
     def finish(self) -> dict:
@@ -254,14 +264,14 @@ class Floor:
             < self.count
         ):
             return result | {"error": f"agents missing from the CPU window: {self.samples}"}
-        ticks = last["tick"] - first["tick"]
-        bare_ticks = (last["bare_commands"] - first["bare_commands"]) / max(last["bare_agents"], 1)
-        real_ms = 1e3 * (last["real_cpu_s"] - first["real_cpu_s"]) / (ticks * max(last["real_agents"], 1))
-        bare_ms = (
-            1e3 * (last["bare_cpu_s"] - first["bare_cpu_s"]) / (bare_ticks * max(last["bare_agents"], 1))
-        )
+        # CPU per tick computed: commands sent in the window, per agent (a bare agent that fell behind
+        # skips poses, as the real one would: it is charged only for the ticks it computed)
+        ticks = (last["real_commands"] - first["real_commands"]) / self.count
+        bare_ticks = (last["bare_commands"] - first["bare_commands"]) / self.count
+        real_ms = 1e3 * (last["real_cpu_s"] - first["real_cpu_s"]) / (ticks * self.count)
+        bare_ms = 1e3 * (last["bare_cpu_s"] - first["bare_cpu_s"]) / (bare_ticks * self.count)
         return result | {
-            "window_ticks": ticks,
+            "window_ticks": round(ticks, 1),
             "bare_ticks_in_window": round(bare_ticks, 1),
             "real_agents": last["real_agents"],
             "bare_agents": last["bare_agents"],
@@ -308,7 +318,7 @@ def run_once(
                 if floor.session is None and (found := _server_endpoint(cli)) is not None:
                     with contextlib.suppress(zenoh.ZError):  # not listening yet: again at the next poll
                         floor.start(*found)
-                floor.poll(cli, ticks)
+                floor.poll(cli)
             if not memory and memory_at is not None and ticks >= memory_at:
                 memory = _memory_mib(_agent_processes(cli))
                 server_pss = _process_mib(cli, "-m sim_server")
@@ -560,7 +570,7 @@ def main(argv: list[str] | None = None) -> int:
             path = Path(work) / f"{data['name']}.yaml"
             path.write_text(yaml.safe_dump(data))
             steps = round(duration_s / 0.05)
-            edge = max(10, steps // 5)  # the trajectory's tick count lags the agents' by a few ticks
+            edge = max(10, steps // 5)
             bare = Floor(count, Path(work) / f"{data['name']}-bare", edge, steps - edge) if floor else None
             result = run_once(
                 path, Path(work) / data["name"], steps, args.timeout, steps // 3 if memory else None, bare

@@ -81,7 +81,8 @@ def main(argv: list[str] | None = None) -> int:
         me = psutil.Process()
         while not floor.samples:  # the window is open: both sets are up and ticking
             time.sleep(0.2)
-        real = [p for c in me.children(recursive=True) for p in c.children() if "--robots" in c.cmdline()]
+        launchers = [c for c in me.children(recursive=True) if "robot_agent" in c.cmdline()]
+        real = [p for launcher in launchers for p in launcher.children()]
         bare = psutil.Process(floor.process.pid).children()
         pids = {"real": min(real, key=lambda p: p.pid).pid, "bare": min(bare, key=lambda p: p.pid).pid}
         before = {name: thread_cpu_s(pid) for name, pid in pids.items()}
