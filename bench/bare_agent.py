@@ -4,9 +4,11 @@ A bare agent uses only zenoh, msgpack and numpy (no project code at all): a clie
 sim server's router; it fetches ``swarm/<run>/config/<i>`` once (for its graph neighbours, the
 mode, the robot's offset and the run's length), subscribes to its own pose
 ``swarm/<run>/robot/<i>/pose`` (the real key: it shadows the real agent of robot i) and to its
-neighbours' messages, and each tick decodes the pose and every message that came (msgpack), runs
+neighbours' messages, and for every pose, in order, decodes it and every message that came (msgpack), runs
 local consensus (thesis eq. 3.1) as a small numpy forward, and puts a message and a command of the
-real payload layout and size (msgpack maps ``{v, k, m: 16 bytes}`` and ``{v, k, l, r}``).
+real payload layout and size (msgpack maps ``{v, k, m: 16 bytes}`` and ``{v, k, l, r}``). It never
+holds the sim back: one that falls behind computes the queued poses after one wake-up (if anything,
+a cheaper floor than the real agent's, which the lockstep sim waits for every tick).
 
 It publishes under ``swarm/<run>/floor/<i>/msg`` and ``.../cmd`` (same key lengths as
 ``agent/<i>/msg``; nothing of the real run listens there), so it can run beside the real agents of
@@ -118,30 +120,32 @@ def run_agent(robot: int, run: str, connect: list[str], log_dir: Path, timeout_s
         try:
             while state["tick"] < final_tick:
                 sample = pose_sub.recv()
-                while (newer := pose_sub.try_recv()) is not None:
-                    sample = newer
-                pose = unpackb(sample.payload.to_bytes())
-                tick = state["tick"] = pose["k"]
-                if state["first_tick"] is None:
-                    state["first_tick"] = tick
-                for index, subscriber in enumerate(msg_subs):
-                    while (message := subscriber.try_recv()) is not None:
-                        latest[index] = unpackb(message.payload.to_bytes())["m"]
-                heard = [raw for raw in latest if raw is not None]
-                theta = pose["th"]
-                c, s = math.cos(theta), math.sin(theta)
-                point = np.array([pose["x"] + offset_m * c, pose["y"] + offset_m * s])
-                if heard:
-                    points = np.frombuffer(b"".join(heard), dtype="<f8").reshape(-1, 2)
-                    u = -gain * (len(heard) * point - points.sum(axis=0))
-                else:
-                    u = np.zeros(2)
-                v, w = c * u[0] + s * u[1], (-s * u[0] + c * u[1]) / offset_m
-                left, right = v - half_axle_m * w, v + half_axle_m * w
-                scale = min(1.0, v_max_mps / max(abs(left), abs(right), 1e-12))
-                msg_pub.put(packb({"v": 1, "k": tick, "m": point.tobytes()}))
-                cmd_pub.put(packb({"v": 1, "k": tick, "l": float(left * scale), "r": float(right * scale)}))
-                state["ticks"] += 1
+                while sample is not None:  # every pose queued, in order: the same work per tick as the sim's
+                    pose = unpackb(sample.payload.to_bytes())
+                    tick = state["tick"] = pose["k"]
+                    if state["first_tick"] is None:
+                        state["first_tick"] = tick
+                    for index, subscriber in enumerate(msg_subs):
+                        while (message := subscriber.try_recv()) is not None:
+                            latest[index] = unpackb(message.payload.to_bytes())["m"]
+                    heard = [raw for raw in latest if raw is not None]
+                    theta = pose["th"]
+                    c, s = math.cos(theta), math.sin(theta)
+                    point = np.array([pose["x"] + offset_m * c, pose["y"] + offset_m * s])
+                    if heard:
+                        points = np.frombuffer(b"".join(heard), dtype="<f8").reshape(-1, 2)
+                        u = -gain * (len(heard) * point - points.sum(axis=0))
+                    else:
+                        u = np.zeros(2)
+                    v, w = c * u[0] + s * u[1], (-s * u[0] + c * u[1]) / offset_m
+                    left, right = v - half_axle_m * w, v + half_axle_m * w
+                    scale = min(1.0, v_max_mps / max(abs(left), abs(right), 1e-12))
+                    msg_pub.put(packb({"v": 1, "k": tick, "m": point.tobytes()}))
+                    cmd_pub.put(
+                        packb({"v": 1, "k": tick, "l": float(left * scale), "r": float(right * scale)})
+                    )
+                    state["ticks"] += 1
+                    sample = pose_sub.try_recv()
         except _Stop:
             reason = "stopped"
         record.update(ticks=state["ticks"], first_tick=state["first_tick"], last_tick=state["tick"])
