@@ -25,9 +25,10 @@ Swarms from ``--large`` (100) robots on run with ``physics_hz`` 120 and again wi
 iterations): at 240 Hz the physics of 100 robots alone needs about a core. The targets are checked
 on the first rate.
 
-Run: ``python bench/bench_runtime.py`` (writes ``bench/results/runtime.json`` and ``runtime.md``);
-``--counts 6 30 --modes lockstep --duration 5`` for a quick look; ``--counts 6 100 --floor-only`` re-measures
-only the floor section of the results (the other results in the file stay). The machine's load average is
+Run: ``python bench/bench_runtime.py --update-results`` (writes ``bench/results/runtime.json`` and
+``runtime.md``; without it, ``runs/bench/``); ``--counts 6 30 --modes lockstep --duration 5`` for a quick
+look; ``--counts 6 100 --floor-only`` re-measures only the floor section of the results (the other
+results in the file stay). The machine's load average is
 recorded with every run: the figures depend on what else runs.
 """
 
@@ -472,7 +473,7 @@ def floor_markdown(report: dict) -> list[str]:
         "",
         "### Agent CPU against the floor",
         "",
-        f"`python bench/bench_runtime.py` (alone: `--floor-only`): one lockstep run per N of"
+        f"`python bench/bench_runtime.py --update-results` (alone: `--floor-only`): one lockstep run per N of"
         f" {settings.get('duration_s', 0):g} s of sim in which a bare agent per robot (`bench/bare_agent.py`:"
         " zenoh, msgpack and numpy only; the same pose key, neighbour count and payload sizes) runs beside"
         " the real one. CPU per tick: user + system time of every agent process (all threads, /proc) over"
@@ -529,7 +530,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--floor-only",
         action="store_true",
-        help="only the floor runs: replace the floor section of --out, keep its other results",
+        help="only the floor runs: replace the floor section of runtime.json in the output directory"
+        " (--update-results: the committed one), keep its other results",
     )
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--timeout", type=float, default=300.0, help="seconds per run")
@@ -539,10 +541,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     out = output_dir(args) / "runtime.json"
+    floor_runs = len(args.counts) if args.floor_duration > 0 else 0
+    timed_runs = sum(
+        1 + len(args.modes) * (len(args.large_physics_hz) if n >= args.large else 1) for n in args.counts
+    )
     bar = progress(
-        total=sum(
-            1 + len(args.modes) * (len(args.large_physics_hz) if n >= args.large else 1) for n in args.counts
-        ),
+        total=floor_runs + (0 if args.floor_only else timed_runs),
         iterable=None,
         args=args,
         desc="bench_runtime",
@@ -609,12 +613,12 @@ def main(argv: list[str] | None = None) -> int:
                     results.append(result)
                     print(json.dumps(result), flush=True)
     if args.floor_only:  # keep every other result of the file
-        report = json.loads(args.out.read_text()) if args.out.exists() else {"results": []}
+        bar.close()
+        report = json.loads(out.read_text()) if out.exists() else {"results": []}
         report.update(floor=floors, floor_load_avg_before=round(load_before, 2))
         report["floor_settings"] = {"duration_s": args.floor_duration, "seed": args.seed}
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(report, indent=2) + "\n")
-        args.out.with_suffix(".md").write_text(markdown(report))
+        out.write_text(json.dumps(report, indent=2) + "\n")
+        out.with_suffix(".md").write_text(markdown(report))
         print(markdown(report))
         return 0 if all("error" not in f and "error" not in f.get("floor", {}) for f in floors) else 1
     report = {
