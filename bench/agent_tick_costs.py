@@ -9,7 +9,8 @@ per-neighbour bookkeeping of ``RobotAgent._drain_messages`` and ``_loop`` is tim
 work (``recv``, ``put``, its threads) is the floor both agents share and is not timed here
 (``bench/bench_runtime.py`` measures the whole).
 
-Run: ``python bench/agent_tick_costs.py`` (prints a table; ``--json FILE`` writes it).
+Run: ``python bench/agent_tick_costs.py --update-results`` (prints a table and writes
+``agent_tick_costs.json`` to the output directory; ``--update-results``: ``bench/results/``).
 """
 
 from __future__ import annotations
@@ -20,11 +21,11 @@ import math
 import sys
 import time
 import timeit
-from pathlib import Path
 
 import msgpack
 import numpy as np
 import zenoh
+from _output import add_output_arguments, output_dir
 
 from robot_agent.agent import AgentOptions, RobotAgent
 from swarm import wire
@@ -163,8 +164,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--neighbours", type=int, default=4)
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--number", type=int, default=2000)
-    parser.add_argument("--json", type=Path)
+    add_output_arguments(parser)
     args = parser.parse_args(argv)
+    out = output_dir(args) / "agent_tick_costs.json"
     table = costs(args.neighbours, args.repeats, args.number)
     real = sum(v for k, v in table.items() if k.startswith("real:") and "_drain_messages" not in k)
     real -= table[f"real: decode_message_values x{args.neighbours} (validated)"]  # inside _drain_messages
@@ -175,10 +177,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{value:8.2f} us  {name}")
     print(f"{real:8.2f} us  real agent, Python per tick (the pieces above, once each)")
     print(f"{bare:8.2f} us  bare agent, Python per tick")
-    if args.json:
-        args.json.write_text(
-            json.dumps({"us": table, "real_us": round(real, 2), "bare_us": round(bare, 2)}, indent=1)
-        )
+    out.write_text(json.dumps({"us": table, "real_us": round(real, 2), "bare_us": round(bare, 2)}, indent=1))
     return 0
 
 

@@ -5,10 +5,12 @@ agent, ``bench/bare_agent.py``, beside each real one); once the CPU window opens
 real and bare agent with ``py-spy record --nonblocking`` (``pip install py-spy``) for ``--seconds``
 and reads both processes' per-thread CPU (``/proc/<pid>/task/*/stat``, by thread name: ``python``
 is the main thread, the others are Zenoh's) over the same interval. Prints the main thread's
-hottest lines (py-spy's active samples) and the thread split; ``--out DIR`` keeps the raw stacks.
+hottest lines (py-spy's active samples) and the thread split, and writes them to
+``agent_profile_<N>.json`` in the output directory (``--update-results``: ``bench/results/``).
 
-Run: ``python bench/profile_agent.py --count 6 --duration 120`` (the run must outlast the window
-and the recording: lockstep at N = 6 runs ~4x faster than real time on a loaded 2-core machine).
+Run: ``python bench/profile_agent.py --count 6 --duration 120 --update-results`` (the run must outlast
+the window and the recording: lockstep at N = 6 runs ~4x faster than real time on a loaded 2-core
+machine).
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ import psutil
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import bench_runtime  # a sibling script
+from _output import add_output_arguments, output_dir
 
 
 def thread_cpu_s(pid: int) -> dict[str, float]:
@@ -63,12 +66,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seconds", type=float, default=8.0, help="py-spy recording length")
     parser.add_argument("--rate", type=int, default=250, help="py-spy samples per second")
     parser.add_argument("--top", type=int, default=12)
-    parser.add_argument("--out", type=Path, help="keep the raw py-spy stacks and the thread split here")
+    add_output_arguments(parser)
     args = parser.parse_args(argv)
+    summary = output_dir(args) / f"agent_profile_{args.count}.json"
     py_spy = shutil.which("py-spy") or str(Path(sys.executable).parent / "py-spy")
     work = Path(tempfile.mkdtemp(prefix="profile-agent-"))
-    out = args.out or work
-    out.mkdir(parents=True, exist_ok=True)
+    out = work  # the raw stacks
     physics_hz = 120.0 if args.count >= 100 else None
     data = bench_runtime.scenario_data(args.count, "lockstep", args.duration, physics_hz, None, 1)
     scenario = work / "scenario.yaml"
@@ -110,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
     result = bench_runtime.run_once(scenario, work / "run", steps, 1800.0, None, floor)
     thread.join(timeout=60)
     report["floor"] = result.get("floor", result)
-    (out / "profile.json").write_text(json.dumps(report, indent=1) + "\n")
+    summary.write_text(json.dumps(report, indent=1) + "\n")
     print(json.dumps(report, indent=1))
     for name in ("real", "bare"):
         if (out / f"{name}.txt").exists():

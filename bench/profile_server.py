@@ -6,9 +6,10 @@ with ``swarm run``; once a fifth of the ticks are done it records the server wit
 --nonblocking`` (active samples only: waiting for commands does not count) for ``--seconds`` and reads
 its per-thread CPU (``/proc/<pid>/task``) over the same interval. Prints the share of the main
 thread's active samples in each function (inclusive: physics step, pose publishing, trajectory
-writing, ...) and the thread split (``python``: the main thread; the rest: Zenoh's router).
+writing, ...) and the thread split (``python``: the main thread; the rest: Zenoh's router), and writes
+them to ``server_profile_<N>.json`` in the output directory (``--update-results``: ``bench/results/``).
 
-Run: ``python bench/profile_server.py --count 100 --duration 20 --out DIR``.
+Run: ``python bench/profile_server.py --count 100 --duration 20 --update-results``.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ import psutil
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import bench_runtime  # a sibling script
+from _output import add_output_arguments, output_dir
 from profile_agent import thread_cpu_s
 
 
@@ -52,12 +54,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seconds", type=float, default=10.0, help="py-spy recording length")
     parser.add_argument("--rate", type=int, default=200)
     parser.add_argument("--top", type=int, default=25)
-    parser.add_argument("--out", type=Path, help="keep the raw stacks and the summary here")
+    add_output_arguments(parser)
     args = parser.parse_args(argv)
+    summary = output_dir(args) / f"server_profile_{args.count}.json"
     py_spy = str(Path(sys.executable).parent / "py-spy")
     work = Path(tempfile.mkdtemp(prefix="profile-server-"))
-    out = args.out or work
-    out.mkdir(parents=True, exist_ok=True)
+    out = work  # the raw stacks
     data = bench_runtime.scenario_data(args.count, args.mode, args.duration, args.physics_hz, None, 1)
     scenario = work / "scenario.yaml"
     scenario.write_text(bench_runtime.yaml.safe_dump(data))
@@ -90,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
         "main_thread_active_samples": total,
         "inclusive_share": {function: round(share, 4) for share, function in rows},
     }
-    (out / "server_profile.json").write_text(json.dumps(report, indent=1) + "\n")
+    summary.write_text(json.dumps(report, indent=1) + "\n")
     print(json.dumps(report, indent=1))
     return 0
 
