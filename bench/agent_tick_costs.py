@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import struct
 import sys
 import time
 import timeit
@@ -46,6 +47,33 @@ class _Channel:
 
     def try_recv(self):
         return self.samples.pop() if self.samples else None
+
+
+_MESSAGE_HEAD = b"\x83\xa1v\x01\xa1k"  # msgpack {"v": 1, "k": ... as swarm.wire packs a message
+_MESSAGE_BODY = b"\xa1m\xc4\x10"  # "m": bin 8 of 16 bytes (two float64)
+_UINTS = {0xCC: 1, 0xCD: 2, 0xCE: 4, 0xCF: 8}
+
+
+def fixed_layout_message(data: bytes) -> tuple[int, tuple[float, float]] | None:
+    """Plan item 1, a prototype timed here (not used by the agent): ``wire.decode_message_values(data, 2)``
+    for the one layout ``robot_agent`` sends, checked byte by byte with the same bounds; None for
+    anything else (the agent would then call the general decoder)."""
+    if data[:6] != _MESSAGE_HEAD or len(data) > 44:
+        return None
+    first = data[6]
+    if first < 0x80:
+        tick, at = first, 7
+    elif first in _UINTS:
+        at = 7 + _UINTS[first]
+        tick = int.from_bytes(data[7:at], "big")
+    else:
+        return None
+    if tick > wire.MAX_TICK or data[at : at + 4] != _MESSAGE_BODY or len(data) != at + 20:
+        return None
+    x, y = struct.unpack_from("<2d", data, at + 4)
+    if not (abs(x) <= wire.MAX_MESSAGE_ABS and abs(y) <= wire.MAX_MESSAGE_ABS):  # NaN fails too
+        return None
+    return tick, (x, y)
 
 
 def costs(neighbours: int, repeats: int, number: int) -> dict[str, float]:
@@ -126,6 +154,11 @@ def costs(neighbours: int, repeats: int, number: int) -> dict[str, float]:
         left, right = v - half * w, v + half * w
         min(1.0, 0.5 / max(abs(left), abs(right), 1e-12))
 
+    for sample_tick in (0, 127, 128, 70_000, 2**33):  # the prototype agrees with the real decoder
+        for values in ((0.1, -0.2), (1e9, -1e9), (float("nan"), 0.0), (2e9, 0.0)):
+            data = wire.encode_message(sample_tick, values)
+            assert fixed_layout_message(data) == wire.decode_message_values(data, 2), (sample_tick, values)
+
     result = {
         "real: decode_pose (validated, Pose dataclass)": best(lambda: wire.decode_pose(pose_bytes)),
         f"real: decode_message_values x{neighbours} (validated)": best(
@@ -145,6 +178,9 @@ def costs(neighbours: int, repeats: int, number: int) -> dict[str, float]:
         "real: perf_counter x2 + compute_s append": best(clocks),
         f"real: _drain_liveliness x{neighbours} (Python loop, stand-in channels)": best(drain_liveliness),
         f"real: zenoh try_recv on {neighbours} empty channels (liveliness)": best(zenoh_try_recv_empty),
+        f"plan: fixed-layout validated decode x{neighbours} (prototype, same answers)": best(
+            lambda: [fixed_layout_message(m) for m in msg_bytes]
+        ),
         "bare: unpackb pose": best(lambda: unpackb(pose_bytes)),
         f"bare: unpackb x{neighbours} messages": best(lambda: [unpackb(m)["m"] for m in msg_bytes]),
         "bare: numpy forward + wheels": best(bare_forward),
@@ -169,6 +205,7 @@ def main(argv: list[str] | None = None) -> int:
     out = output_dir(args) / "agent_tick_costs.json"
     table = costs(args.neighbours, args.repeats, args.number)
     real = sum(v for k, v in table.items() if k.startswith("real:") and "_drain_messages" not in k)
+    # (the "plan:" rows are prototypes, in neither sum)
     real -= table[f"real: decode_message_values x{args.neighbours} (validated)"]  # inside _drain_messages
     real += table[f"real: _drain_messages x{args.neighbours} (decode + inbox bookkeeping)"]
     real -= table[f"real: _drain_liveliness x{args.neighbours} (Python loop, stand-in channels)"]
