@@ -38,7 +38,10 @@ import msgpack
 import numpy as np
 import zenoh
 
-POSE_RING, MESSAGE_RING = 4, 16  # as robot_agent.agent
+POSE_RING = 256
+"""Poses buffered (robot_agent keeps 4): the lockstep sim waits for the real agents only, so a bare
+agent may fall behind; it computes every pose it got, in order, and must not lose any meanwhile."""
+MESSAGE_RING = 16  # as robot_agent.agent
 _PR_SET_PDEATHSIG = 1
 
 

@@ -11,7 +11,7 @@ import bench_runtime
 
 
 def test_bare_agents_shadow_every_tick_with_the_real_payloads(tmp_path: Path) -> None:
-    count, duration_s = 3, 6.0
+    count, duration_s = 3, 15.0
     steps = round(duration_s / 0.05)
     data = bench_runtime.scenario_data(count, "lockstep", duration_s, None, None, seed=2)
     scenario = tmp_path / "floor.yaml"
@@ -27,8 +27,9 @@ def test_bare_agents_shadow_every_tick_with_the_real_payloads(tmp_path: Path) ->
     records = [bench_runtime.json.loads(p.read_text()) for p in (tmp_path / "bare").glob("floor_*.json")]
     assert sorted(r["last_tick"] for r in records) == [steps - 1] * count
     assert all(r["exit_reason"] == "done" for r in records)
-    # the window opens once the bare agents are up: in it they answered every tick (lockstep: no pose
-    # is skipped while the real agents hold the server), so both sets' CPU is per the same ticks
+    # each computed every pose from its first one on, in order (none lost while it lagged behind)
+    assert all(r["ticks"] == steps - r["first_tick"] for r in records), records
+    # the window opens once the bare agents are up; each set is charged for the ticks it computed in it
     assert measured["window_ticks"] > 0
-    assert abs(measured["bare_ticks_in_window"] - measured["window_ticks"]) <= 3
+    assert 0 < measured["bare_ticks_in_window"] <= measured["window_ticks"] + 3
     assert measured["real_cpu_ms_per_tick"] > 0 and measured["bare_cpu_ms_per_tick"] > 0
