@@ -1,6 +1,6 @@
-"""BC training wall time of the default model, measured: writes ``bench/results/bc_training.json``.
+"""BC training wall time of the graph-filter GNN, measured: writes ``bench/results/bc_training.json``.
 
-Runs exactly the documented reproduction of ``models/gnn_default.npz`` (``models/README.md``)::
+Runs exactly the documented reproduction of ``models/gnn_graph_filter.npz`` (``models/README.md``)::
 
     swarm collect --out DIR/bc.npz                       # seed 0, 10^6 samples
     swarm train --algo bc --data DIR/bc.npz --out DIR/bc  # preset default, seed 0, one thread
@@ -28,7 +28,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 OUT = ROOT / "bench" / "results" / "bc_training.json"
-MODEL = ROOT / "models" / "gnn_default.npz"
+MODEL = ROOT / "models" / "gnn_graph_filter.npz"
 TARGET_S = 120
 
 
@@ -75,7 +75,8 @@ def main() -> int:
     runs = [r for r in previous.get("runs", []) if "load_average_before" in r] + [run]
     times = [r["train_time_s"] for r in runs]
     document = {
-        "benchmark": "BC training wall time of the default model (models/gnn_default.npz)",
+        "benchmark": "BC training wall time of the graph-filter GNN "
+        "(models/gnn_graph_filter.npz, the default before the flooding GNN)",
         "command": "python bench/bench_bc_training.py",
         "what_it_runs": "swarm collect --out data/bc.npz && "
         "swarm train --algo bc --data data/bc.npz --out runs/bc",
