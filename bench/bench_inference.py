@@ -57,7 +57,7 @@ def main() -> None:
         "command": "python bench/bench_inference.py " + " ".join(sys.argv[1:]),
         "model": args.model,
         "model_kind": policy.kind,
-        "hops": policy.spec.hops,
+        "hops": policy.spec.hops if hasattr(policy, "spec") else None,  # the flooding GNN has no hops
         "target_median_us": TARGET_US,
         "overall": stats(elapsed),
         "by_neighbours": {int(m): stats(elapsed[counts == m]) for m in range(2, 9)},

@@ -7,7 +7,7 @@ batched torch swarm, episodes, GNN features and shaped team reward), with TorchR
 truncated episodes, which the hand-written loop counts as done), ``ClipPPOLoss`` (per-robot ratio,
 padding slots masked through ``loss_mask_key``, advantage normalized per minibatch), a replay buffer
 sampling minibatches without replacement. MAPPO: decentralized actor, centralized critic, one set of
-parameters shared by all robots. Policy: the GNN of ``models/gnn_default.npz`` as the mean of
+parameters shared by all robots. Policy: the GNN of ``models/gnn_graph_filter.npz`` as the mean of
 TorchRL's ``IndependentNormal`` with the learned state-free std (``swarm.train.ppo.Actor``);
 critic: ``swarm.train.ppo.Critic``, its swarm value given to every robot. Adam with the loop's two
 learning rates and linear schedule, per-network gradient clipping, the critic-only warm-up updates.
@@ -541,7 +541,7 @@ def main(argv: list[str] | None = None) -> int:
     c = sub.add_parser("compare", help="evaluate both runs' policies and write the comparison")
     c.add_argument("ours", help="run directory of swarm train --algo ppo")
     c.add_argument("torchrl", help="run directory of bench/ppo_torchrl.py train")
-    c.add_argument("--bc", default="models/gnn_default.npz", help="the policy both started from")
+    c.add_argument("--bc", default="models/gnn_graph_filter.npz", help="the policy both started from")
     c.add_argument("--starts", type=int, default=200, help="first starts of swarm sweep per graph")
     c.add_argument("--max-duration", type=float, default=3000.0)
     add_output_arguments(c, committed=OUT_DIR)

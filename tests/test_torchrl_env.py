@@ -25,7 +25,8 @@ from swarm.rl.torchrl_env import SwarmTorchRLEnv
 from swarm.train import ppo
 
 ROOT = Path(__file__).resolve().parent.parent
-DEFAULT_MODEL = ROOT / "models" / "gnn_default.npz"
+# PPO fine-tunes the gated graph filter (the default before the flooding GNN), as `swarm train --algo ppo`.
+DEFAULT_MODEL = ROOT / "models" / "gnn_graph_filter.npz"
 
 
 def make_env(**overrides) -> SwarmTorchRLEnv:
