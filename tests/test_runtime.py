@@ -126,6 +126,29 @@ def agent_records(out: Path) -> dict[int, dict]:
     return {int(p.stem.split("_")[1]): json.loads(p.read_text()) for p in (out / "logs").glob("agent_*.json")}
 
 
+def assert_commands_equal_batched_policy(out: Path, scenario_path: Path, model: Path) -> np.ndarray:
+    """Replay a lockstep run's logged poses through the batched policy of the kinematic engine (its
+    own previous outbox as everybody's inbox: every agent heard all its neighbours last tick) and
+    assert that every applied wheel command equals it to 1e-9; returns the applied commands
+    ``(T, N, 2)``."""
+    from swarm.policy import load_policy
+
+    scenario = load_scenario(scenario_path)
+    lines = [json.loads(line) for line in (out / "trajectory.jsonl").read_text().splitlines()]
+    poses = np.array([line["poses"] for line in lines])
+    applied = np.array([line["wheels"] for line in lines[:-1]])
+    count = scenario.robots.count
+    policy = load_policy(model, scenario.robot, count)
+    points = controlled_point(poses, scenario.robot.offset_m)
+    inbox, heard = np.zeros((1, count, policy.message_dim)), Links.nobody(1, count)
+    for tick, wheels in enumerate(applied):
+        u_world, inbox = policy.act(poses[tick][None], points[tick][None], inbox, heard)
+        expected = point_velocity_to_wheels(u_world[0], poses[tick, :, 2], scenario.robot)
+        np.testing.assert_allclose(wheels, expected, rtol=0, atol=1e-9, err_msg=f"tick {tick}")
+        heard = Links.from_dense(scenario.adjacency()[None])
+    return applied
+
+
 def test_pybullet_run_writes_results_and_every_agent_listens_only_to_its_neighbours(tmp_path):
     scenario_path = scenario_file(tmp_path, "cycle-local_consensus", sim__duration=6.0)
     out = tmp_path / "results"
@@ -325,7 +348,7 @@ def test_a_policy_file_runs_in_the_agents_with_the_kinematic_engines_timing(tmp_
     """The GNN path: the sim serves the policy file, each agent runs it with numpy (no torch), and
     every command equals what the batched policy of the kinematic engine computes, tick by tick,
     from the same poses and last tick's messages."""
-    from swarm.policy import load_policy, save_policy
+    from swarm.policy import save_policy
 
     rng = np.random.default_rng(0)
     metadata = {
@@ -344,19 +367,7 @@ def test_a_policy_file_runs_in_the_agents_with_the_kinematic_engines_timing(tmp_
     assert code in (0, 1), stderr
     assert all(r["controller"] == "gnn" and r["heavy_modules"] == [] for r in agent_records(out).values())
 
-    scenario = load_scenario(path)
-    lines = [json.loads(line) for line in (out / "trajectory.jsonl").read_text().splitlines()]
-    poses = np.array([line["poses"] for line in lines])
-    applied = np.array([line["wheels"] for line in lines[:-1]])
-    count = scenario.robots.count
-    policy = load_policy(model, scenario.robot, count)
-    points = controlled_point(poses, scenario.robot.offset_m)
-    inbox, heard = np.zeros((1, count, policy.message_dim)), Links.nobody(1, count)
-    for tick, wheels in enumerate(applied):
-        u_world, inbox = policy.act(poses[tick][None], points[tick][None], inbox, heard)
-        expected = point_velocity_to_wheels(u_world[0], poses[tick, :, 2], scenario.robot)
-        np.testing.assert_allclose(wheels, expected, rtol=0, atol=1e-9, err_msg=f"tick {tick}")
-        heard = Links.from_dense(scenario.adjacency()[None])
+    applied = assert_commands_equal_batched_policy(out, path, model)
     assert np.abs(applied).max() > 0.1
 
 
