@@ -174,12 +174,20 @@ def rogue(endpoint: str, run: str, robot: int, count: int, credentials: str, out
         own_pose = listener.declare_subscriber(
             keys.pose(robot), zenoh.handlers.RingChannel(8), allowed_origin=remote
         )
-        configs = sorted(
-            str(reply.ok.key_expr)
-            for i in range(count)
-            for reply in listener.get(keys.config(i), timeout=1.0)
-            if reply.ok is not None
-        )
+        def config_keys(i: int, timeout_s: float) -> list[str]:
+            return [
+                str(reply.ok.key_expr)
+                for reply in listener.get(keys.config(i), timeout=timeout_s)
+                if reply.ok is not None
+            ]
+
+        # its own config must answer: asked until it does (a loaded machine may answer late); the others'
+        # are denied, and no amount of waiting turns a denial into an answer
+        own_config, own_deadline_s = [], time.monotonic() + 60
+        while not own_config and time.monotonic() < own_deadline_s:
+            own_config = config_keys(robot, 5.0)
+        others_configs = [key for i in range(count) if i != robot for key in config_keys(i, 1.0)]
+        configs = sorted(own_config + others_configs)
         wildcard_configs = [
             str(reply.ok.key_expr)
             for reply in watcher.get(keys.all_configs, timeout=1.0)

@@ -107,7 +107,7 @@ def test_agent_gives_up_on_an_unreachable_endpoint_after_its_startup_timeout():
         f"robot 3: could not connect to {endpoint} within 1.5 s",
     )
     assert result.returncode == 1
-    assert 1.4 <= time.monotonic() - start_s < 15
+    assert time.monotonic() - start_s >= 1.4  # it waited its timeout (not hanging: one_line_error's 60 s)
 
 
 def test_central_gives_up_on_an_unreachable_endpoint_after_its_startup_timeout():
@@ -117,7 +117,7 @@ def test_central_gives_up_on_an_unreachable_endpoint_after_its_startup_timeout()
         [PYTHON, "-m", "robot_agent.central", "--connect", endpoint, "--startup-timeout", "1"],
         f"could not connect to {endpoint} within 1 s",
     )
-    assert time.monotonic() - start_s < 15
+    assert time.monotonic() - start_s >= 0.9  # it waited its timeout (not hanging: one_line_error's 60 s)
 
 
 def _console_script(name: str) -> str:
