@@ -412,6 +412,31 @@ def process_fault_state(events: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     }
 
 
+def never_back(
+    events: Sequence[Mapping[str, Any]],
+    state: Mapping[str, Any],
+    records: Mapping[int, Mapping[str, Any]],
+) -> list[int]:
+    """Restarted robots whose new agent never drove them: no record written by the process the last
+    ``restart_agent`` event started (its ``pid``), or one with no tick computed (it crashed or
+    hung before its first command). Such a robot is out of the live swarm, as a killed one is."""
+    new_pid = {
+        event["robot"]: event.get("pid")
+        for event in events
+        if event.get("kind") == "restart_agent" and isinstance(event.get("robot"), int)
+    }
+    out = []
+    for robot in state["agents_restarted"]:
+        if robot in state["agents_lost"]:
+            continue  # killed again after its restart: already out
+        record = records.get(robot)
+        same_process = isinstance(record, Mapping) and record.get("pid") == new_pid.get(robot)
+        ticks = record.get("ticks") if same_process and isinstance(record, Mapping) else None
+        if not isinstance(ticks, int) or ticks <= 0:
+            out.append(robot)
+    return out
+
+
 def fault_summary(
     scenario: Any,
     out_dir: Path,
@@ -423,7 +448,8 @@ def fault_summary(
     """The ``faults`` block of metrics.json for a run of ``scenario`` (a ``Scenario``).
 
     Consensus is judged over the robots whose agents are alive at the end (killed and not restarted,
-    or hung, per ``<out_dir>/events.jsonl``, are out), per connected component of the live graph at the
+    hung, or restarted by a process that never drove the robot (:func:`never_back`), per
+    ``<out_dir>/events.jsonl`` and the records, are out), per connected component of the live graph at the
     end: the scenario's graph minus the links down both ways at the last tick, minus the dead robots.
     ``records``: the agents' records (``logs/agent_<i>.json``) whose ``messages`` counters are summed,
     with those of replaced agents (``logs/replaced/``); ``message_counts`` instead, from an engine
@@ -442,7 +468,10 @@ def fault_summary(
     if adjacency is None:  # disk graph: the graph of the last positions
         adjacency = graphs.disk(positions[-1], scenario.topology.radius_m)
     live_adjacency = schedule.live_adjacency(adjacency, end_tick)
+    if message_counts is None:  # real agents: a restart counts once its new process drove the robot
+        state["agents_restarted_never_back"] = never_back(events, state, records)
     out = set(state["agents_lost"]) | set(state["agents_hung_at_end"])
+    out |= set(state.get("agents_restarted_never_back", []))
     live = [i for i in range(count) if i not in out]
     down = [
         [i, j]

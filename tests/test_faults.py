@@ -410,14 +410,16 @@ def test_consensus_is_judged_over_live_robots_per_live_component(tmp_path):
     events = [
         {"kind": "kill_agent", "robot": 2, "at_s": 0.2, "tick": 4, "wall_s": 1.0, "detail": ""},
         {"kind": "kill_agent", "robot": 4, "at_s": 0.3, "tick": 6, "wall_s": 1.1, "detail": ""},
-        {"kind": "restart_agent", "robot": 4, "at_s": 0.5, "tick": 10, "wall_s": 1.2, "detail": ""},
+        {"kind": "restart_agent", "robot": 4, "at_s": 0.5, "tick": 10, "wall_s": 1.2, "pid": 77},
     ]
     (tmp_path / "events.jsonl").write_text("".join(json.dumps(event) + "\n" for event in events))
     times = np.arange(21) * DT
     start = np.array([[0, 0, 0], [1, 0, 0], [5, 0, 0], [9, 0, 0], [10, 0, 0]], dtype=float)
     end = np.array([[0.4, 0, 0], [0.6, 0, 0], [5, 0, 0], [9.4, 0, 0], [9.6, 0, 0]], dtype=float)
     poses = np.array([start + (end - start) * min(1.0, k / 10) for k in range(21)])
-    records = {i: {"messages": {"lost": 2, "dropped_by_fault": 1, "invalid": 0}} for i in range(5)}
+    counters = {"lost": 2, "dropped_by_fault": 1, "invalid": 0}
+    records = {i: {"pid": 70 + i, "ticks": 20, "messages": counters} for i in range(4)}
+    records[4] = {"pid": 77, "ticks": 10, "messages": counters}  # the restarted process drove robot 4
     summary = fault_summary(scenario, tmp_path, records, times, poses)
     assert summary["agents_lost"] == [2] and summary["agents_restarted"] == [4]
     assert summary["live_robots"] == [0, 1, 3, 4] and summary["events"] == events
@@ -434,6 +436,47 @@ def test_consensus_is_judged_over_live_robots_per_live_component(tmp_path):
     assert outcome["components"] == summary["components"]
     assert outcome["final_metric"] == pytest.approx(9.2)  # over the live robots only
     json.dumps(outcome)  # metrics.json can hold it
+
+
+@pytest.mark.parametrize(
+    "record_4",
+    [None, {"pid": 77, "ticks": 0}, {"pid": 66, "ticks": 20}],
+    ids=["no record", "no tick computed", "a record of the killed process"],
+)
+def test_a_restarted_robot_whose_new_agent_never_drove_it_is_out_of_the_live_swarm(tmp_path, record_4):
+    """Robot 4 of a line of 5 killed and restarted, but the new process (pid 77) never drove it: the
+    live swarm is 0-3, which gathered; robot 4 left behind does not make the run fail or converge."""
+    data = {
+        **BASE,
+        "robots": {"count": 5},
+        "topology": {"kind": "line"},
+        "sim": {"engine": "pybullet", "duration": 1.0},
+        "faults": [
+            {"kind": "kill_agent", "at": 0.3, "robot": 4},
+            {"kind": "restart_agent", "at": 0.5, "robot": 4},
+        ],
+        "success": {"threshold": 0.3},
+    }
+    scenario = parse_scenario(data)
+    events = [
+        {"kind": "kill_agent", "robot": 4, "at_s": 0.3, "tick": 6, "wall_s": 1.1, "detail": "", "pid": 66},
+        {"kind": "restart_agent", "robot": 4, "at_s": 0.5, "tick": 10, "wall_s": 1.2, "pid": 77},
+    ]
+    (tmp_path / "events.jsonl").write_text("".join(json.dumps(event) + "\n" for event in events))
+    times = np.arange(21) * DT
+    start = np.array([[0, 0, 0], [0.2, 0, 0], [0.4, 0, 0], [0.6, 0, 0], [9, 0, 0]], dtype=float)
+    poses = np.array([start] * 21)
+    records: dict = {i: {"pid": 70 + i, "ticks": 20} for i in range(4)}
+    if record_4 is not None:
+        records[4] = record_4
+    summary = fault_summary(scenario, tmp_path, records, times, poses)
+    assert summary["agents_restarted"] == [4] and summary["agents_restarted_never_back"] == [4]
+    assert summary["live_robots"] == [0, 1, 2, 3]
+    assert [c["robots"] for c in summary["components"]] == [[0, 1, 2, 3]]
+    # the same run with a new agent that did drive robot 4: it is live, and 9 m away
+    records[4] = {"pid": 77, "ticks": 10}
+    summary = fault_summary(scenario, tmp_path, records, times, poses)
+    assert summary["agents_restarted_never_back"] == [] and summary["live_robots"] == [0, 1, 2, 3, 4]
 
 
 # ---------------------------------------------------------------------------------- the PyBullet runtime
