@@ -21,9 +21,10 @@ reads what the processes report:
   (``bench/bare_agent.py``: zenoh, msgpack, numpy, the same I/O) shadows the real one; both sets'
   CPU per tick over the same window of ticks and their ratio, which holds on a loaded machine.
 
-Swarms from ``--large`` (100) robots on run with ``physics_hz`` 120 and again with 60 (10 solver
-iterations): at 240 Hz the physics of 100 robots alone needs about a core. The targets are checked
-on the first rate.
+Swarms from ``--large`` (100) robots on run with ``physics_hz`` 40 and 30 solver iterations
+(``sim_server.physics.LARGE_SWARM_PHYSICS_HZ``: as close to the unicycle model as 240 Hz with 10, at
+a fifth of its cost; at 240 Hz the physics of 100 robots alone needs about a core); more rates with
+``--large-physics-hz 40 120``. The targets are checked on the first rate.
 
 Run: ``python bench/bench_runtime.py --update-results`` (writes ``bench/results/runtime.json`` and
 ``runtime.md``; without it, ``runs/bench/``); ``--counts 6 30 --modes lockstep --duration 5`` for a quick
@@ -53,6 +54,7 @@ import yaml
 import zenoh
 from _output import add_output_arguments, output_dir, progress
 
+from sim_server.physics import LARGE_SWARM_PHYSICS_HZ, LARGE_SWARM_SOLVER_ITERATIONS
 from swarm import wire
 from swarm.initial_poses import box_for
 
@@ -362,6 +364,11 @@ def run_once(
         "overruns": stats.get("overruns"),
         "physics_ms_per_tick": stats.get("physics_ms_per_tick"),
         "physics_cpu_ms_per_tick": stats.get("physics_cpu_ms_per_tick"),
+        "publish_cpu_ms_per_tick": stats.get("publish_cpu_ms_per_tick"),
+        "trajectory_cpu_ms_per_tick": stats.get("trajectory_cpu_ms_per_tick"),
+        "publish_lag_ms": stats.get("publish_lag_ms"),
+        "slowest_command_ms": stats.get("slowest_command_ms"),
+        "late_agents_per_tick": stats.get("late_agents_per_tick"),
         "first_tick_s": runtime.get("startup_s"),
         "agents_ready_s": runtime.get("agents_ready_s"),
         "cli_to_first_tick_s": None if cli_first_tick_s is None else round(cli_first_tick_s, 3),
@@ -461,7 +468,41 @@ def markdown(report: dict) -> str:
     for name, check in report.get("targets", {}).items():
         met = {True: "yes", False: "**no**", None: "-"}[check["met"]]
         lines.append(f"| {name} {check['target']:g} | {_fmt(check['measured'])} | {met} |")
-    return "\n".join(lines + floor_markdown(report)) + "\n"
+    return "\n".join(lines + tick_markdown(report) + floor_markdown(report)) + "\n"
+
+
+def tick_markdown(report: dict) -> list[str]:
+    """The server's tick split (main-thread CPU) and, in realtime, how late the agents were per tick."""
+    lines = [
+        "",
+        "### The server's tick and the agents' lateness",
+        "",
+        "Server main-thread CPU per tick: physics step, publishing the N poses, writing the trajectory"
+        " (the rest of the server's CPU is Zenoh's router threads). Realtime: how late the poses went out"
+        " after their wall-clock boundary (p99), the slowest agent's command after the poses (p50 / p99"
+        " over the ticks where every command was in), and the ticks by how many agents' commands were"
+        " not in when the server stepped.",
+        "",
+        "| N | mode | physics Hz / iterations | physics ms | publish ms | trajectory ms | poses late p99 ms"
+        " | slowest command p50 / p99 ms | ticks by agents late (0 / 1 / 2-4 / 5-19 / 20+) |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in report["results"]:
+        if "error" in r:
+            continue
+        lag, slowest, late = (
+            r.get("publish_lag_ms") or {},
+            r.get("slowest_command_ms") or {},
+            r.get("late_agents_per_tick"),
+        )
+        lines.append(
+            f"| {r['robots']} | {r['mode']} | {_fmt(r['physics_hz'], 0)} / {r.get('solver_iterations')}"
+            f" | {_fmt(r.get('physics_cpu_ms_per_tick'))} | {_fmt(r.get('publish_cpu_ms_per_tick'))}"
+            f" | {_fmt(r.get('trajectory_cpu_ms_per_tick'))} | {_fmt(lag.get('p99'))}"
+            f" | {_fmt(slowest.get('p50'))} / {_fmt(slowest.get('p99'))}"
+            f" | {' / '.join(str(v) for v in late.values()) if late else '-'} |"
+        )
+    return lines
 
 
 def floor_markdown(report: dict) -> list[str]:
@@ -516,10 +557,17 @@ def main(argv: list[str] | None = None) -> int:
         "--large-physics-hz",
         type=float,
         nargs="+",
-        default=[120.0, 60.0],
-        help="sim.physics_hz of large swarms, one run each (default: 120 60; the targets use the first)",
+        default=[LARGE_SWARM_PHYSICS_HZ],
+        help=f"sim.physics_hz of large swarms, one run each (default: {LARGE_SWARM_PHYSICS_HZ:g}; the"
+        " targets use the first)",
     )
-    parser.add_argument("--solver-iterations", type=int, help="scenario sim.solver_iterations")
+    parser.add_argument("--solver-iterations", type=int, help="scenario sim.solver_iterations below --large")
+    parser.add_argument(
+        "--large-solver-iterations",
+        type=int,
+        default=LARGE_SWARM_SOLVER_ITERATIONS,
+        help=f"sim.solver_iterations of large swarms (default {LARGE_SWARM_SOLVER_ITERATIONS})",
+    )
     parser.add_argument(
         "--floor-duration",
         type=float,
@@ -567,7 +615,8 @@ def main(argv: list[str] | None = None) -> int:
             memory: bool,
             floor: bool = False,
         ) -> dict:
-            data = scenario_data(count, mode, duration_s, physics_hz, args.solver_iterations, args.seed)
+            iterations = args.large_solver_iterations if count >= args.large else args.solver_iterations
+            data = scenario_data(count, mode, duration_s, physics_hz, iterations, args.seed)
             data["name"] += (f"-{physics_hz:g}hz" if physics_hz is not None else "") + (
                 "-memory" if memory else "-floor" if floor else ""
             )

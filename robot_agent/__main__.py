@@ -100,6 +100,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--password", help="Zenoh password (sim.acl; prefer --credentials: not in ps)")
     parser.add_argument("--log-dir", help="write agent_<i>.json (and agent_<i>.log with --robots) here")
     parser.add_argument("--die-with-parent", action="store_true", help="exit when the parent process dies")
+    parser.add_argument(
+        "--nice",
+        type=int,
+        default=0,
+        help="add this to the agents' niceness before they start (0-19; the runner gives 5: the sim server,"
+        " on the critical path of every tick, then wins a contended core)",
+    )
     return parser
 
 
@@ -234,11 +241,15 @@ def main(argv: list[str] | None = None) -> int:
         settings = {robot: zenoh_settings(robot, args) for robot in robots}
         # endpoints of the right form, before any agent starts (each opens its own session)
         wire.session_config(args.zenoh_mode, args.connect or [], (), args.lease_ms, settings[robots[0]])
+        if not 0 <= args.nice <= 19:
+            raise ValueError(f"--nice: {args.nice} is not within 0-19")
         if args.log_dir:
             Path(args.log_dir).mkdir(parents=True, exist_ok=True)
     except (ValueError, OSError, zenoh.ZError) as error:  # CredentialsError is a ValueError
         print(f"robot-agent: error: {one_line(error)}", file=sys.stderr)
         return 2
+    if args.nice:
+        os.nice(args.nice)  # before forking: every agent inherits it
     if args.robot is not None:
         return run_one(args.robot, args, settings[args.robot])
     start_s = time.perf_counter()

@@ -567,6 +567,7 @@ class RobotAgent:
         record["liveliness_tokens"].append(keys.alive_agent(self.robot))
         record["ready_s"] = round(time.perf_counter() - self._started_s, 4)
         record["cpu_ready_s"] = round(time.process_time(), 4)
+        record["nice"] = os.getpriority(os.PRIO_PROCESS, 0)
         self._write_record()
         watchdog = threading.Timer(SIM_UNSEEN_S, self._check_sim_seen)
         watchdog.daemon = True

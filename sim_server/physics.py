@@ -61,6 +61,18 @@ settling is not counted.
 """
 
 
+LARGE_SWARM_PHYSICS_HZ = 40.0
+LARGE_SWARM_SOLVER_ITERATIONS = 30
+"""Physics settings for large swarms (``sim.physics_hz: 40``, ``sim.solver_iterations: 30``; the
+runtime benchmark uses them from N = 100 on). Measured, 100 robots on one core (CPU per 0.05 s
+control period): 240 Hz / 10 iterations 43 ms, 120 / 10 18 ms, 60 / 10 9.4 ms, 40 / 30 9.3 ms,
+20 / 50 5.2 ms. Against the unicycle model (the 10 s schedule of ``tests/test_physics.py``, limit
+3 cm and 30 mrad): 240 / 10 0.6-1.0 cm and 6-10 mrad, 120 / 10 0.8-1.2 cm and 9-17 mrad,
+60 / 10 2.2-2.5 cm and 29-37 mrad (fails), 40 / 30 0.1-0.3 cm and 2-6 mrad (and rest creep 0.6-0.8
+mm/s, less than 240 / 10), 20 / 50 passes the schedule but lets bumpers overlap 1 cm in a pile-up
+(fails). Two substeps of 25 ms with 30 iterations: the cost of 60 Hz, the accuracy of 240 Hz."""
+
+
 def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Hamilton product of (..., 4) quaternions stored as (x, y, z, w), PyBullet's order."""
     ax, ay, az, aw = a[..., 0], a[..., 1], a[..., 2], a[..., 3]

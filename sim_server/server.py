@@ -33,6 +33,7 @@ the file is rewritten every ``STATS_EVERY_S`` while the run goes on (a killed se
 
 from __future__ import annotations
 
+import itertools
 import json
 import logging
 import math
@@ -56,6 +57,15 @@ from swarm.scenario import Scenario
 log = logging.getLogger(__name__)
 
 EXIT_DONE, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+
+TRAJECTORY_FLUSH_S = 0.1
+"""Trajectory lines are batched and written at most this long after the oldest (every tick when the
+scenario has process faults: the runner follows the server's progress in the file to time them)."""
+
+REALTIME_STEP_MARGIN = 1.5
+"""Realtime: the server stops waiting for tick k's commands this many times its recent step time
+(moving average of apply + physics + trajectory, plus 1 ms; at most half a period) before boundary
+k+1, so that the poses of k+1 go out on their boundary instead of a physics step late."""
 
 STATS_EVERY_S = 1.0
 """While the run goes on, ``server_stats.json`` is rewritten (atomically) at the first tick and then
@@ -119,6 +129,30 @@ def _percentiles_ms(samples_s: list[float]) -> dict[str, float | int | None]:
     }
 
 
+LATE_BINS = ((0, 0), (1, 1), (2, 4), (5, 19), (20, None))
+"""Bins of :func:`_histogram`: agents whose command of a tick was not in when the server stepped."""
+
+
+def _histogram(late_per_tick: list[int]) -> dict[str, int]:
+    """Ticks by how many agents' commands were missing at the step ("0", "1", "2-4", "5-19", "20+")."""
+    out = {}
+    for low, high in LATE_BINS:
+        name = str(low) if high == low else f"{low}+" if high is None else f"{low}-{high}"
+        out[name] = sum(1 for n in late_per_tick if n >= low and (high is None or n <= high))
+    return out
+
+
+LATENCY_BINS_MS = (0.0, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0, 128.0, 256.0)
+"""Lower edges of the command-latency histogram (``latency_histogram_ms``; the last bin is open)."""
+
+
+def _latency_histogram_ms(samples_s: list[float]) -> dict[str, int]:
+    """Commands by latency (pose published -> command received), bins ``"lo-hi"`` ms, last ``"256+"``."""
+    counts = np.histogram(np.asarray(samples_s) * 1e3, bins=[*LATENCY_BINS_MS, np.inf])[0]
+    names = [f"{lo:g}-{hi:g}" for lo, hi in itertools.pairwise(LATENCY_BINS_MS)]
+    return dict(zip([*names, f"{LATENCY_BINS_MS[-1]:g}+"], counts.tolist(), strict=True))
+
+
 class SimServer:
     """One run of the sim server; :meth:`serve` returns the process exit status."""
 
@@ -142,6 +176,8 @@ class SimServer:
         self._cmds: dict[int, tuple[wire.Command, float]] = {}  # lockstep: this tick's; realtime: latest
         self._fresh: set[int] = set()  # robots whose command of the current tick is in
         self._published_at_s: dict[int, float] = {}
+        self._encoder = wire.PoseEncoder(self.count)  # pose payloads packed into buffers made once
+        self._timing = {"publish": [0.0, 0.0], "trajectory": [0.0, 0.0]}  # part -> [wall s, CPU s]
         self._newest_cmd_tick: dict[int, int] = {}  # robot -> tick of the newest command accepted
         self._stats_written_s = -math.inf  # written at the first tick: a server killed early leaves it too
         self.stats: dict[str, Any] = {
@@ -295,6 +331,7 @@ class SimServer:
         return outcome
 
     def _publish(self, publishers: list, tick: int, poses: np.ndarray) -> None:
+        start_s, start_cpu_s = time.perf_counter(), time.thread_time()
         time_s = tick * self.dt_s
         with self._cond:
             self._tick = tick
@@ -303,18 +340,40 @@ class SimServer:
             if self.scenario.sim.mode == "lockstep":
                 self._cmds.clear()
             self._published_at_s[tick] = time.perf_counter()
-        for publisher, pose in zip(publishers, poses.tolist(), strict=True):
-            publisher.put(wire.encode_pose(tick, time_s, pose))
+        for publisher, payload in zip(
+            publishers, self._encoder.encode(tick, time_s, poses.tolist()), strict=True
+        ):
+            publisher.put(payload)
+        self._add_time("publish", start_s, start_cpu_s)
+
+    def _add_time(self, part: str, start_s: float, start_cpu_s: float) -> None:
+        spent = self._timing[part]
+        spent[0] += time.perf_counter() - start_s
+        spent[1] += time.thread_time() - start_cpu_s
+
+    def _timing_stats(self, steps: int) -> dict[str, float]:
+        """Wall and main-thread CPU ms per tick of publishing the poses and writing the trajectory."""
+        out = {}
+        for part, (wall_s, cpu_s) in self._timing.items():
+            out[f"{part}_ms_per_tick"] = 1e3 * wall_s / max(steps, 1)
+            out[f"{part}_cpu_ms_per_tick"] = 1e3 * cpu_s / max(steps, 1)
+        return out
 
     def _apply_and_step(self, world, trajectory, tick: int, poses, wheels) -> tuple[float, float]:
         """Saturate and apply the wheels of tick k, log the tick, advance physics one control
         period; returns the physics step's wall and CPU seconds."""
         wheels = saturate_wheels(wheels, self.scenario.robot.v_max_mps)
+        start_s, start_cpu_s = time.perf_counter(), time.thread_time()
         trajectory.write(tick, tick * self.dt_s, poses, wheels=wheels.tolist())
+        self._add_time("trajectory", start_s, start_cpu_s)
         world.set_wheel_speeds(wheels)
         start_s, start_cpu_s = time.perf_counter(), time.thread_time()
         world.step(self.dt_s)
         return time.perf_counter() - start_s, time.thread_time() - start_cpu_s
+
+    def _trajectory(self) -> TrajectoryWriter:
+        flush_every_s = 0.0 if self.scenario.faults else TRAJECTORY_FLUSH_S
+        return TrajectoryWriter(self.options.out_dir / "trajectory.jsonl", flush_every_s)
 
     def _lockstep(self, world: PhysicsWorld, publishers: list) -> int:
         sim = self.scenario.sim
@@ -325,7 +384,7 @@ class SimServer:
         served, latencies_s, missed_by_robot = 0, [], np.zeros(self.count, dtype=int)
         physics_s, physics_cpu_s = 0.0, 0.0
         start_s = time.perf_counter()
-        with TrajectoryWriter(self.options.out_dir / "trajectory.jsonl") as trajectory:
+        with self._trajectory() as trajectory:
             for tick in range(steps + 1):
                 poses = world.poses()
                 if tick == steps:
@@ -363,8 +422,10 @@ class SimServer:
             ticks_missed=steps - served,
             missed_commands_by_robot=missed_by_robot.tolist(),
             latency_ms=_percentiles_ms(latencies_s),
+            latency_histogram_ms=_latency_histogram_ms(latencies_s),
             physics_ms_per_tick=1e3 * physics_s / max(steps, 1),
             physics_cpu_ms_per_tick=1e3 * physics_cpu_s / max(steps, 1),
+            **self._timing_stats(steps),
         )
         loop_wall_s = time.perf_counter() - start_s
         self.stats.update(loop_wall_s=loop_wall_s, realtime_factor=steps * self.dt_s / loop_wall_s)
@@ -377,9 +438,11 @@ class SimServer:
         applied_tick = np.full(self.count, -1)
         last_fresh_s = np.full(self.count, -math.inf)
         served, latencies_s, overruns = 0, [], 0
+        publish_lags_s, slowest_s, late_per_tick = [], [], []
         physics_s, physics_cpu_s = 0.0, 0.0
+        step_average_s = 0.0  # moving average of apply + physics + trajectory, wall seconds
         start_s = time.perf_counter()
-        with TrajectoryWriter(self.options.out_dir / "trajectory.jsonl") as trajectory:
+        with self._trajectory() as trajectory:
             for tick in range(steps + 1):
                 tick_s = start_s + tick * self.dt_s  # the wall-clock boundary of this tick
                 with self._cond:
@@ -392,33 +455,42 @@ class SimServer:
                     trajectory.write(tick, tick * self.dt_s, poses)
                     break
                 self._publish(publishers, tick, poses)
+                publish_lags_s.append(self._published_at_s[tick] - tick_s)
+                margin_s = min(0.5 * self.dt_s, REALTIME_STEP_MARGIN * step_average_s + 1e-3)
                 with self._cond:
                     # Step as soon as every live agent's command of this tick is in (the same commands
-                    # as at the boundary, computed early), else at the next boundary with the latest.
-                    self._wait(self._all_fresh, tick_s + self.dt_s)
+                    # as at the boundary, computed early), else in time for the next boundary (one
+                    # step's time before it) with the latest.
+                    self._wait(self._all_fresh, tick_s + self.dt_s - margin_s)
                     cmds, alive = dict(self._cmds), set(self._alive)
                 if self._stop:
                     return EXIT_INTERRUPTED
-                now_s = time.perf_counter()
-                fresh = 0
+                step_start_s = now_s = time.perf_counter()
+                fresh, slowest = 0, 0.0
                 for i in range(self.count):
                     if i in cmds and cmds[i][0].tick > applied_tick[i]:
                         command, arrived_s = cmds[i]
                         wheels[i] = (command.left_mps, command.right_mps)
                         applied_tick[i] = command.tick
                         last_fresh_s[i] = arrived_s
-                        fresh += command.tick == tick
                         sent_s = self._published_at_s.get(command.tick)
                         if sent_s is not None:
                             latencies_s.append(arrived_s - sent_s)
+                        if command.tick == tick:
+                            fresh += 1
+                            slowest = max(slowest, arrived_s - self._published_at_s[tick])
                     if i not in alive or now_s - last_fresh_s[i] > sim.watchdog_s:
                         wheels[i] = 0.0
                 served += fresh >= len(alive)
+                late_per_tick.append(max(0, len(alive) - fresh))
+                if fresh >= len(alive):
+                    slowest_s.append(slowest)
                 self._count_robot_ticks({i: c for i, c in cmds.items() if c[0].tick == tick}, alive)
                 self._published_at_s.pop(tick - 20, None)
                 step_wall_s, step_cpu_s = self._apply_and_step(world, trajectory, tick, poses, wheels)
                 physics_s += step_wall_s
                 physics_cpu_s += step_cpu_s
+                step_average_s += 0.2 * (time.perf_counter() - step_start_s - step_average_s)
                 self._write_stats_now_and_then(tick)
         wall_s = time.perf_counter() - start_s
         self.stats.update(
@@ -426,9 +498,14 @@ class SimServer:
             ticks_served=served,
             ticks_missed=steps - served,
             latency_ms=_percentiles_ms(latencies_s),
+            latency_histogram_ms=_latency_histogram_ms(latencies_s),
+            publish_lag_ms=_percentiles_ms(publish_lags_s),
+            slowest_command_ms=_percentiles_ms(slowest_s),
+            late_agents_per_tick=_histogram(late_per_tick),
             overruns=overruns,
             physics_ms_per_tick=1e3 * physics_s / max(steps, 1),
             physics_cpu_ms_per_tick=1e3 * physics_cpu_s / max(steps, 1),
+            **self._timing_stats(steps),
             loop_wall_s=wall_s,
             realtime_factor=steps * self.dt_s / wall_s if wall_s > 0 else None,
         )

@@ -63,6 +63,12 @@ def _run_id(name: str) -> str:
     return f"{slug}-{uuid.uuid4().hex[:8]}"
 
 
+AGENT_NICE = 5
+"""Niceness the runner adds to the agents' launcher (``robot-agent --nice``; its forked agents inherit
+it): the sim server, whose work is on the critical path of every tick, wins a contended core (CFS
+weights 1024 : 335 per runnable thread). Restarted agents (``restart_agent``) get it too."""
+
+
 def _child_env() -> dict[str, str]:
     """Environment of the children: this package importable, one BLAS thread per process."""
     env = dict(os.environ)
@@ -359,6 +365,7 @@ def _run_distributed(
     else:
         controller_name = "agents"
         controller_cmd = [python, "-m", "robot_agent", "--robots", f"0-{count - 1}", *common]
+        controller_cmd += ["--nice", str(AGENT_NICE)]
 
     ticks = _TickCounter(out_dir / "trajectory.jsonl")
     bar = None
@@ -371,7 +378,7 @@ def _run_distributed(
     with _sigterm_as_interrupt(), Supervisor(env=_child_env()) as supervisor:
 
         def start_agent(robot: int, number: int):
-            command = [python, "-m", "robot_agent", "--robot", str(robot), *common]
+            command = [python, "-m", "robot_agent", "--robot", str(robot), *common, "--nice", str(AGENT_NICE)]
             return supervisor.start(
                 f"agent_{robot}.restart{number}", command, logs / f"agent_{robot}.restart{number}.log"
             )

@@ -249,6 +249,35 @@ def encode_pose(tick: int, time_s: float, pose: Sequence[float]) -> bytes:
     return _pack({"k": int(tick), "t": float(time_s), "x": x, "y": y, "th": theta})
 
 
+class PoseEncoder:
+    """Pose payloads of ``count`` robots packed each tick into buffers allocated once.
+
+    The bytes are the msgpack map of :func:`encode_pose` with a fixed layout: the tick always as a
+    uint 64 (``0xcf``) and every float as a float 64 (``0xcb``), so one ``struct.pack_into`` per
+    robot fills its buffer (msgpack readers accept a uint 64 for any tick). 60 bytes per pose.
+    """
+
+    _LAYOUT = struct.Struct(">7sQ3sd3sd3sd4sd")
+    _PARTS = (
+        bytes.fromhex("86a17601a16bcf"),  # map of 6, "v": 1, "k": uint 64 follows
+        bytes.fromhex("a174cb"),  # "t": float 64
+        bytes.fromhex("a178cb"),  # "x"
+        bytes.fromhex("a179cb"),  # "y"
+        bytes.fromhex("a27468cb"),  # "th"
+    )
+
+    def __init__(self, count: int):
+        self.buffers = [bytearray(self._LAYOUT.size) for _ in range(count)]
+
+    def encode(self, tick: int, time_s: float, poses: Sequence[Sequence[float]]) -> list[bytearray]:
+        """Fill robot i's buffer with its pose of ``tick``; returns the buffers (reused next tick)."""
+        pack, (p0, p1, p2, p3, p4) = self._LAYOUT.pack_into, self._PARTS
+        tick, time_s = int(tick), float(time_s)
+        for buffer, (x, y, theta) in zip(self.buffers, poses, strict=True):
+            pack(buffer, 0, p0, tick, p1, time_s, p2, x, p3, y, p4, theta)
+        return self.buffers
+
+
 def decode_pose(data: bytes) -> Pose | None:
     body = _unpack(data, MAX_SMALL_PAYLOAD)
     if body is None:

@@ -1,23 +1,18 @@
-"""Several hosts, emulated: two Linux network namespaces joined by a veth pair.
+"""Several hosts, emulated: two Linux network namespaces joined by a bridge (``swarm.netns``).
 
 The sim server runs in one namespace ("the sim host") listening on ``tcp/0.0.0.0:7447``; robot agents
 are started by hand as a user on another host would, with only the endpoint and a robot id (no run
 id: they discover it), four in the other namespace ("the robot host", over the veth link) and two in
 the sim's own namespace (over its loopback). The run must complete and the robots gather.
 
-Addresses are from TEST-NET-1 (192.0.2.0/24, RFC 5737) and exist only inside the two namespaces this
+Addresses are from TEST-NET-1 (192.0.2.0/24, RFC 5737) and exist only inside the namespaces this
 test creates and deletes. Needs root (CAP_NET_ADMIN) and ``ip`` (iproute2); skips otherwise.
 """
 
 from __future__ import annotations
 
-import contextlib
 import json
-import os
-import shutil
-import signal
 import subprocess
-import sys
 import time
 import uuid
 from pathlib import Path
@@ -27,102 +22,30 @@ import pytest
 import yaml
 
 from swarm import wire
+from swarm.netns import Hosts, NamespaceError, Processes, why_no_namespaces
 from swarm.results import read_trajectory, summarize
 from swarm.scenario import load_scenario
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
-SIM_ADDRESS, ROBOT_ADDRESS = "192.0.2.1", "192.0.2.2"
+SIM_ADDRESS = "192.0.2.1"  # swarm.netns.Hosts: the first host
 PORT = 7447
 TIMEOUT_S = 60.0
 
 
-def _why_no_namespaces() -> str | None:
-    if not sys.platform.startswith("linux"):
-        return "network namespaces need Linux"
-    if os.geteuid() != 0:
-        return "creating network namespaces needs root (CAP_NET_ADMIN)"
-    if shutil.which("ip") is None:
-        return "creating network namespaces needs the `ip` command (iproute2)"
-    return None
-
-
-def _ip(*args: str) -> None:
-    subprocess.run(["ip", *args], check=True, capture_output=True, text=True, timeout=10)
-
-
 @pytest.fixture
 def two_hosts():
-    """(sim namespace, robot namespace, robot-side veth name), deleted afterwards."""
-    reason = _why_no_namespaces()
+    """The sim host and the robot host (``swarm.netns.Hosts``), deleted afterwards."""
+    reason = why_no_namespaces()
     if reason:
         pytest.skip(reason)
-    tag = uuid.uuid4().hex[:6]
-    sim_ns, robot_ns = f"swarm-sim-{tag}", f"swarm-robots-{tag}"
-    sim_if, robot_if = f"sws{tag}", f"swr{tag}"  # interface names: at most 15 characters
-    setup = [
-        ("netns", "add", sim_ns),
-        ("netns", "add", robot_ns),
-        ("link", "add", sim_if, "type", "veth", "peer", "name", robot_if),
-        ("link", "set", sim_if, "netns", sim_ns),
-        ("link", "set", robot_if, "netns", robot_ns),
-        ("-n", sim_ns, "addr", "add", f"{SIM_ADDRESS}/24", "dev", sim_if),
-        ("-n", robot_ns, "addr", "add", f"{ROBOT_ADDRESS}/24", "dev", robot_if),
-        ("-n", sim_ns, "link", "set", sim_if, "up"),
-        ("-n", robot_ns, "link", "set", robot_if, "up"),
-        ("-n", sim_ns, "link", "set", "lo", "up"),
-        ("-n", robot_ns, "link", "set", "lo", "up"),
-    ]
-
-    def cleanup() -> None:
-        for namespace in (sim_ns, robot_ns):  # deleting a namespace deletes its end of the veth pair
-            subprocess.run(["ip", "netns", "del", namespace], capture_output=True, timeout=10)
-        subprocess.run(["ip", "link", "del", sim_if], capture_output=True, timeout=10)
-
     try:
-        for command in setup:
-            _ip(*command)
-    except (subprocess.CalledProcessError, OSError, subprocess.TimeoutExpired) as error:
-        cleanup()
-        detail = getattr(error, "stderr", None) or error
-        pytest.skip(f"cannot create network namespaces here: {str(detail).strip()}")
-    try:
-        yield sim_ns, robot_ns, robot_if
-    finally:
-        cleanup()
+        with Hosts(["sim", "robots"]) as hosts:
+            yield hosts
+    except NamespaceError as error:
+        pytest.skip(f"cannot create network namespaces here: {error}")
 
 
-class Processes:
-    """Commands started inside a namespace, each in its own process group; all stopped at the end."""
-
-    def __init__(self, log_dir: Path):
-        self.log_dir = log_dir
-        self.started: dict[str, subprocess.Popen] = {}
-
-    def start(self, name: str, namespace: str, *command: str) -> subprocess.Popen:
-        with open(self.log_dir / f"{name}.out", "wb") as log:
-            process = subprocess.Popen(
-                ["ip", "netns", "exec", namespace, sys.executable, *command],
-                stdin=subprocess.DEVNULL,
-                stdout=log,
-                stderr=subprocess.STDOUT,
-                cwd=PROJECT_ROOT,
-                start_new_session=True,
-            )
-        self.started[name] = process
-        return process
-
-    def stop(self) -> None:
-        for process in self.started.values():
-            if process.poll() is None:
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(process.pid, signal.SIGKILL)
-                process.wait(timeout=10)
-
-    def log(self, name: str) -> str:
-        return (self.log_dir / f"{name}.out").read_text(errors="replace")[-2000:]
-
-
-def start_split_run(processes: Processes, sim_ns: str, robot_ns: str, scenario: Path, out: Path, run_id: str):
+def start_split_run(processes: Processes, scenario: Path, out: Path, run_id: str):
     """The sim server in the sim namespace; agents 0-3 started one by one in the robot namespace, with
     only the server's address (no run id), and agents 4-5 from one launcher beside the server.
     Returns (server, agents)."""
@@ -130,7 +53,7 @@ def start_split_run(processes: Processes, sim_ns: str, robot_ns: str, scenario: 
     logs.mkdir(parents=True, exist_ok=True)
     server = processes.start(
         "sim_server",
-        sim_ns,
+        "sim",
         *("-m", "sim_server", "--scenario", str(scenario), "--out", str(out)),
         *("--run", run_id, "--listen", f"tcp/0.0.0.0:{PORT}"),
     )
@@ -138,7 +61,7 @@ def start_split_run(processes: Processes, sim_ns: str, robot_ns: str, scenario: 
     agents = [
         processes.start(
             f"agent_{i}",
-            robot_ns,
+            "robots",
             *("-m", "robot_agent", "--robot", str(i), "--connect", remote, "--log-dir", str(logs)),
         )
         for i in range(4)
@@ -147,7 +70,7 @@ def start_split_run(processes: Processes, sim_ns: str, robot_ns: str, scenario: 
     agents.append(
         processes.start(
             "agents_4_5",
-            sim_ns,
+            "sim",
             *("-m", "robot_agent", "--robots", "4-5", "--connect", local, "--log-dir", str(logs)),
         )
     )
@@ -155,7 +78,7 @@ def start_split_run(processes: Processes, sim_ns: str, robot_ns: str, scenario: 
 
 
 def test_agents_started_by_hand_on_another_host_join_the_run(two_hosts, tmp_path):
-    sim_ns, robot_ns, robot_if = two_hosts
+    hosts = two_hosts
     data = yaml.safe_load((PROJECT_ROOT / "scenarios" / "thesis" / "cycle-local_consensus.yaml").read_text())
     data["sim"]["duration"] = 6.0
     scenario_path = tmp_path / "scenario.yaml"
@@ -163,23 +86,15 @@ def test_agents_started_by_hand_on_another_host_join_the_run(two_hosts, tmp_path
     scenario = load_scenario(scenario_path)
     out, logs = tmp_path / "results", tmp_path / "results" / "logs"
     run_id = f"multihost-{uuid.uuid4().hex[:6]}"
-    processes = Processes(tmp_path)
+    processes = Processes(hosts, tmp_path, cwd=PROJECT_ROOT)
     try:
-        server, agents = start_split_run(processes, sim_ns, robot_ns, scenario_path, out, run_id)
+        server, agents = start_split_run(processes, scenario_path, out, run_id)
         try:
             server_code = server.wait(timeout=TIMEOUT_S)
             agent_codes = [agent.wait(timeout=15) for agent in agents]
         except subprocess.TimeoutExpired:
             pytest.fail(f"the run did not end: {processes.log('sim_server')}")
-        link_bytes = int(
-            subprocess.run(
-                ["ip", "netns", "exec", robot_ns, "cat", f"/sys/class/net/{robot_if}/statistics/tx_bytes"],
-                capture_output=True,
-                text=True,
-                check=True,
-                timeout=10,
-            ).stdout
-        )
+        link_bytes = hosts.tx_bytes("robots")
     finally:
         processes.stop()
 
@@ -219,7 +134,7 @@ def test_a_network_partition_mid_run_is_survived_on_both_sides(two_hosts, tmp_pa
     (``sim.server_lost_s``) instead of exiting, reconnect once the link is back, and drive their
     robots again; no process exits early and the run completes. The cut shows in the server's
     statistics (far robots: gone and back, ticks without a command) and the agents' records."""
-    sim_ns, robot_ns, robot_if = two_hosts
+    hosts = two_hosts
     data = yaml.safe_load((PROJECT_ROOT / "scenarios" / "thesis" / "cycle-local_consensus.yaml").read_text())
     data["sim"].update(mode="realtime", duration=12.0, server_lost_s=8.0)
     scenario_path = tmp_path / "scenario.yaml"
@@ -228,18 +143,18 @@ def test_a_network_partition_mid_run_is_survived_on_both_sides(two_hosts, tmp_pa
     dt_s, steps = scenario.sim.control_period_s, scenario.steps
     out, logs = tmp_path / "results", tmp_path / "results" / "logs"
     trajectory = out / "trajectory.jsonl"
-    processes = Processes(tmp_path)
+    processes = Processes(hosts, tmp_path, cwd=PROJECT_ROOT)
     try:
-        server, agents = start_split_run(processes, sim_ns, robot_ns, scenario_path, out, "partition")
+        server, agents = start_split_run(processes, scenario_path, out, "partition")
         deadline_s = time.monotonic() + TIMEOUT_S
         while not (trajectory.exists() and trajectory.read_bytes().count(b"\n") >= PARTITION_AFTER_S / dt_s):
             assert server.poll() is None and time.monotonic() < deadline_s, processes.log("sim_server")
             time.sleep(0.02)
         cut_tick = trajectory.read_bytes().count(b"\n")
-        _ip("-n", robot_ns, "link", "set", robot_if, "down")
+        hosts.link_up("robots", False)
         time.sleep(PARTITION_S)
         assert all(process.poll() is None for process in [server, *agents]), "a process exited during the cut"
-        _ip("-n", robot_ns, "link", "set", robot_if, "up")
+        hosts.link_up("robots", True)
         restored_tick = trajectory.read_bytes().count(b"\n")
         try:
             server_code = server.wait(timeout=TIMEOUT_S)

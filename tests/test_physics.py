@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim_server.physics import PhysicsWorld
+from sim_server.physics import LARGE_SWARM_PHYSICS_HZ, LARGE_SWARM_SOLVER_ITERATIONS, PhysicsWorld
 from sim_server.urdf import packaged_urdf_path, render_urdf, write_urdf
 from swarm.robot import (
     RobotParams,
@@ -35,6 +35,8 @@ from swarm.robot import (
 
 PARAMS = RobotParams()
 CONTROL_DT_S = 0.05
+SETTINGS = [(240.0, 10), (LARGE_SWARM_PHYSICS_HZ, LARGE_SWARM_SOLVER_ITERATIONS)]
+"""(physics_hz, solver_iterations): the default and the large-swarm settings, both held to the model."""
 
 
 def _heading(theta: float) -> np.ndarray:
@@ -108,13 +110,15 @@ def _schedule(k: int) -> np.ndarray:
     return saturate_wheels(unicycle_to_wheels(v, w, PARAMS.half_axle_m), PARAMS.v_max_mps)
 
 
-def test_schedule_tracks_unicycle_integration():
+@pytest.mark.parametrize(("physics_hz", "solver_iterations"), SETTINGS)
+def test_schedule_tracks_unicycle_integration(physics_hz, solver_iterations):
     """(c) 10 s at 20 Hz control: final pose close to exact unicycle integration.
 
-    Measured: 0.6-1.0 cm and 6-11 mrad after 10 s, 2.6 m of path; asserted: 3 cm and 0.03 rad.
+    Measured: 0.6-1.0 cm and 6-11 mrad after 10 s, 2.6 m of path (40 Hz / 30 iterations: 0.1-0.3 cm,
+    2-6 mrad); asserted: 3 cm and 0.03 rad.
     """
     init = np.array([[0.5, -0.3, 0.0], [5.0, 5.0, 2.4]])
-    with PhysicsWorld(PARAMS, init) as world:
+    with PhysicsWorld(PARAMS, init, physics_hz, solver_iterations) as world:
         ref = world.poses()
         for k in range(round(10.0 / CONTROL_DT_S)):
             wheels = np.tile(_schedule(k), (len(init), 1))
@@ -145,13 +149,14 @@ def test_upright_under_hard_braking(force_limit_nm):
         np.testing.assert_allclose(world.axle_heights(), PARAMS.wheel_radius_m, atol=1e-3)
 
 
-def test_pile_up_at_origin_no_flips_no_overlap():
+@pytest.mark.parametrize(("physics_hz", "solver_iterations"), SETTINGS)
+def test_pile_up_at_origin_no_flips_no_overlap(physics_hz, solver_iterations):
     """(e) 8 robots all heading for the origin at full speed: no flips, bumpers barely overlap."""
     n = 8
     angles = np.arange(n) * 2 * np.pi / n + 0.1
     init = np.stack([1.2 * np.cos(angles), 1.2 * np.sin(angles), angles + np.pi], axis=1)
     min_gap = np.inf
-    with PhysicsWorld(PARAMS, init) as world:
+    with PhysicsWorld(PARAMS, init, physics_hz, solver_iterations) as world:
         worst_tilt = 0.0
         for _ in range(round(6.0 / CONTROL_DT_S)):
             poses = world.poses()

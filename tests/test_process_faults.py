@@ -259,3 +259,38 @@ def test_trajectory_reader_skips_a_torn_last_line(tmp_path):
         times_s, poses, _ = read_trajectory(path)
         complete = int(np.sum(ends <= cut + 1))  # a line missing only its newline is complete
         assert len(times_s) == complete and poses.shape == ((complete, 3, 3) if complete else (0, 0, 3))
+
+
+BATCHING_WRITER = """
+import os, signal, sys, time
+import numpy as np
+from swarm.results import TrajectoryWriter
+flush_every_s, batched = float(sys.argv[2]), int(sys.argv[3])
+writer = TrajectoryWriter(__import__("pathlib").Path(sys.argv[1]), flush_every_s)
+for k in range(batched):
+    writer.write(k, 0.05 * k, np.full((3, 3), float(k)))
+writer.flush()
+for k in range(batched, batched + 7):  # batched in memory, never written: lost with the process
+    writer.write(k, 0.05 * k, np.full((3, 3), float(k)))
+os.kill(os.getpid(), signal.SIGKILL)
+"""
+
+
+@pytest.mark.parametrize("flush_every_s", [0.0, 3600.0])
+def test_a_killed_batching_trajectory_writer_leaves_every_line_up_to_its_last_batch(tmp_path, flush_every_s):
+    """The server batches trajectory lines (``TrajectoryWriter(flush_every_s)``): a writer SIGKILLed
+    with lines still batched leaves a readable file of every line up to the last batch written; with
+    no batching (0 s: the default, and with process faults) every line written is on disk."""
+    path = tmp_path / "trajectory.jsonl"
+    result = subprocess.run(
+        [sys.executable, "-c", BATCHING_WRITER, str(path), str(flush_every_s), "20"],
+        cwd=PROJECT_ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert result.returncode == -signal.SIGKILL, result.stderr
+    times_s, poses, _ = read_trajectory(path)
+    expected = 20 if flush_every_s > 0 else 27
+    assert len(times_s) == expected and poses.shape == (expected, 3, 3)
+    np.testing.assert_allclose(poses[:, 0, 0], np.arange(expected))

@@ -90,6 +90,20 @@ def test_pose_round_trip(tick, time_s, x, y, theta):
     assert pose == wire.Pose(tick, time_s, x, y, theta)
 
 
+@given(tick=ticks, time_s=st.floats(0, 1e6), x=finite, y=finite, theta=st.floats(-math.pi, math.pi))
+def test_pose_encoder_packs_what_encode_pose_means(tick, time_s, x, y, theta):
+    """The server's reusable buffers hold the same msgpack map as ``encode_pose`` (read by msgpack
+    itself, not by our decoder) and decode to the same pose."""
+    encoder = wire.PoseEncoder(2)
+    encoder.encode(tick + 1, time_s + 1, [(0.0, 0.0, 0.0), (1.0, 2.0, 3.0)])  # stale content first
+    buffers = encoder.encode(tick, time_s, [(x, y, theta), (-x, -y, -theta)])
+    assert msgpack.unpackb(bytes(buffers[0])) == msgpack.unpackb(
+        wire.encode_pose(tick, time_s, (x, y, theta))
+    )
+    assert wire.decode_pose(bytes(buffers[1])) == wire.Pose(tick, time_s, -x, -y, -theta)
+    assert buffers is encoder.encode(tick, time_s, [(x, y, theta), (x, y, theta)])  # no new buffers
+
+
 @given(tick=ticks, left=st.floats(-5, 5), right=st.floats(-5, 5))
 def test_command_round_trip(tick, left, right):
     assert wire.decode_command(wire.encode_command(tick, (left, right))) == wire.Command(tick, left, right)
@@ -251,8 +265,10 @@ def _accepted_value_is_sane(decoded: object) -> bool:
     if isinstance(decoded, wire.Pose):
         values = (decoded.time_s, decoded.x_m, decoded.y_m, decoded.theta_rad)
         bounds = (wire.MAX_TIME_S, wire.MAX_COORD_M, wire.MAX_COORD_M, wire.MAX_ANGLE_RAD)
-        return 0 <= decoded.tick <= wire.MAX_TICK and decoded.time_s >= 0 and all(
-            math.isfinite(v) and abs(v) <= bound for v, bound in zip(values, bounds, strict=True)
+        return (
+            0 <= decoded.tick <= wire.MAX_TICK
+            and decoded.time_s >= 0
+            and all(math.isfinite(v) and abs(v) <= bound for v, bound in zip(values, bounds, strict=True))
         )
     if isinstance(decoded, wire.Command):
         return 0 <= decoded.tick <= wire.MAX_TICK and all(
