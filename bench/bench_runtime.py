@@ -56,6 +56,7 @@ from _output import add_output_arguments, output_dir, progress
 
 from sim_server.physics import LARGE_SWARM_PHYSICS_HZ, LARGE_SWARM_SOLVER_ITERATIONS
 from swarm import wire
+from swarm.distributed import AGENT_NICE
 from swarm.initial_poses import box_for
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -291,6 +292,7 @@ def run_once(
     timeout_s: float,
     memory_at: int | None,
     floor: Floor | None = None,
+    agent_nice: int | None = None,
 ) -> dict:
     """``swarm run`` one scenario; returns its measurements (or an ``error``).
 
@@ -301,7 +303,8 @@ def run_once(
     machine_before, children_before = _cpu_busy_cores(), _children_cpu_s()
     started_s = time.perf_counter()
     process = subprocess.Popen(
-        [sys.executable, "-m", "swarm.cli", "run", str(scenario_path), "--out", str(out_dir), "--quiet"],
+        [sys.executable, "-m", "swarm.cli", "run", str(scenario_path), "--out", str(out_dir), "--quiet"]
+        + ([] if agent_nice is None else ["--agent-nice", str(agent_nice)]),
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -445,7 +448,8 @@ def markdown(report: dict) -> str:
         f"`python bench/bench_runtime.py`: {settings['duration_s']:g} s of sim per run, 20 Hz control, local"
         f" consensus on a random graph of mean degree ~4, {report['machine']['cpu_count']} cores. 1-min load"
         f" average {report['load_avg_before']} before the first run; 'other' = cores kept busy by processes"
-        " outside the run while it ran. Targets are checked on the first physics rate of N >= 100.",
+        " outside the run while it ran. Targets are checked on the first physics rate of N >= 100. Agents"
+        f" at nice {settings.get('agent_nice', 0)} (`swarm run --agent-nice`).",
         "",
         "| N | mode | physics Hz | p50 ms | p99 ms | ticks served | RTF | agents ready s | first tick s"
         " | PSS/agent MiB | agent CPU ms/tick | server CPU ms/tick | other cores |",
@@ -582,6 +586,13 @@ def main(argv: list[str] | None = None) -> int:
         " (--update-results: the committed one), keep its other results",
     )
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument(
+        "--agent-nice",
+        type=int,
+        choices=range(20),
+        metavar="0-19",
+        help=f"swarm run --agent-nice (default: the runner's, {AGENT_NICE})",
+    )
     parser.add_argument("--timeout", type=float, default=300.0, help="seconds per run")
     add_output_arguments(parser)
     parser.add_argument(
@@ -626,7 +637,13 @@ def main(argv: list[str] | None = None) -> int:
             edge = max(10, steps // 5)
             bare = Floor(count, Path(work) / f"{data['name']}-bare", edge, steps - edge) if floor else None
             result = run_once(
-                path, Path(work) / data["name"], steps, args.timeout, steps // 3 if memory else None, bare
+                path,
+                Path(work) / data["name"],
+                steps,
+                args.timeout,
+                steps // 3 if memory else None,
+                bare,
+                args.agent_nice,
             )
             if args.keep or "error" in result:
                 kept = keep / f"{data['name']}-{time.strftime('%H%M%S')}"
@@ -678,6 +695,7 @@ def main(argv: list[str] | None = None) -> int:
             "topology": "random, p = min(0.6, 4 / (N - 1)), connected",
             "controller": "local_consensus",
             "seed": args.seed,
+            "agent_nice": AGENT_NICE if args.agent_nice is None else args.agent_nice,
         },
         "machine": {
             "python": platform.python_version(),

@@ -136,7 +136,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         check_formats(args.record)
     out_dir = _results_dir(args, scenario.name)
     try:
-        outcome = run_scenario(scenario, out_dir, path, progress=not args.quiet)
+        outcome = run_scenario(scenario, out_dir, path, progress=not args.quiet, agent_nice=args.agent_nice)
     except KeyboardInterrupt:
         _print_partial(out_dir, args.record)
         raise
@@ -339,6 +339,14 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--controller", choices=list(CONTROLLER_KINDS), help="override controller.kind")
     run.add_argument("--model", help="override controller.model (exported model file)")
     run.add_argument("--duration", type=float, help="override sim.duration_s (simulated seconds)")
+    run.add_argument(
+        "--agent-nice",
+        type=int,
+        choices=range(20),
+        metavar="0-19",
+        help="pybullet: niceness the agents get on top of this process's (default 5: the sim server,"
+        " on the critical path of every tick, wins a contended core)",
+    )
     run.set_defaults(handler=cmd_run)
 
     report = commands.add_parser(

@@ -295,14 +295,19 @@ def _check_faults(scenario: Scenario) -> None:
 
 
 def run_distributed(
-    scenario: Scenario, out_dir: Path, scenario_path: Path | None = None, progress: bool = True
+    scenario: Scenario,
+    out_dir: Path,
+    scenario_path: Path | None = None,
+    progress: bool = True,
+    agent_nice: int = AGENT_NICE,
 ) -> dict:
     """Run ``scenario`` as sim server + agent processes; returns the outcome (metrics.json).
+    ``agent_nice``: niceness the agents get on top of the runner's (0-19).
 
     Interrupted (Ctrl-C, SIGTERM), it stops every process, writes ``metrics.json`` and the plots of the
     ticks on disk, marked partial, and raises ``KeyboardInterrupt`` again."""
     try:
-        return _run_distributed(scenario, out_dir, scenario_path, progress)
+        return _run_distributed(scenario, out_dir, scenario_path, progress, agent_nice)
     except KeyboardInterrupt:
         ticks = _TickCounter(Path(out_dir) / "trajectory.jsonl").update()
         write_partial_results(
@@ -312,7 +317,11 @@ def run_distributed(
 
 
 def _run_distributed(
-    scenario: Scenario, out_dir: Path, scenario_path: Path | None = None, progress: bool = True
+    scenario: Scenario,
+    out_dir: Path,
+    scenario_path: Path | None = None,
+    progress: bool = True,
+    agent_nice: int = AGENT_NICE,
 ) -> dict:
     """:func:`run_distributed` without the partial results of an interrupted run.
 
@@ -365,7 +374,7 @@ def _run_distributed(
     else:
         controller_name = "agents"
         controller_cmd = [python, "-m", "robot_agent", "--robots", f"0-{count - 1}", *common]
-        controller_cmd += ["--nice", str(AGENT_NICE)]
+        controller_cmd += ["--nice", str(agent_nice)]
 
     ticks = _TickCounter(out_dir / "trajectory.jsonl")
     bar = None
@@ -378,7 +387,7 @@ def _run_distributed(
     with _sigterm_as_interrupt(), Supervisor(env=_child_env()) as supervisor:
 
         def start_agent(robot: int, number: int):
-            command = [python, "-m", "robot_agent", "--robot", str(robot), *common, "--nice", str(AGENT_NICE)]
+            command = [python, "-m", "robot_agent", "--robot", str(robot), *common, "--nice", str(agent_nice)]
             return supervisor.start(
                 f"agent_{robot}.restart{number}", command, logs / f"agent_{robot}.restart{number}.log"
             )

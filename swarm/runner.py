@@ -107,8 +107,14 @@ def run_kinematic(
 
 
 def run_scenario(
-    scenario: Scenario, out_dir: Path, scenario_path: Path | None = None, progress: bool = True
+    scenario: Scenario,
+    out_dir: Path,
+    scenario_path: Path | None = None,
+    progress: bool = True,
+    agent_nice: int | None = None,
 ) -> dict:
+    """Run ``scenario`` on its engine; ``agent_nice``: the pybullet agents' niceness (None: the
+    runner's default, ``swarm.distributed.AGENT_NICE``)."""
     log.debug(
         "%s: %s engine, %d robots, %s graph, %s controller -> %s",
         scenario.name,
@@ -123,5 +129,7 @@ def run_scenario(
     if scenario.sim.engine == "pybullet":
         from swarm.distributed import run_distributed
 
-        return run_distributed(scenario, out_dir, scenario_path, progress)
+        if agent_nice is None:
+            return run_distributed(scenario, out_dir, scenario_path, progress)
+        return run_distributed(scenario, out_dir, scenario_path, progress, agent_nice)
     raise ScenarioError(f"sim.engine: '{scenario.sim.engine}' is not available in this version")

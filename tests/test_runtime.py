@@ -382,9 +382,11 @@ def test_realtime_mode_runs_on_the_wall_clock(tmp_path):
     out = tmp_path / "out"
     path = scenario_file(tmp_path, "complete-local_consensus", sim__duration=3.0, sim__mode="realtime")
     started = time.monotonic()
-    code, _, stderr = Run(path, out).finish()
+    code, _, stderr = Run(path, out, "--agent-nice", "0").finish()
     assert code in (0, 1), stderr
     assert time.monotonic() - started >= 3.0
+    nice = os.getpriority(os.PRIO_PROCESS, 0)  # --agent-nice 0: the agents at the runner's niceness
+    assert {record["nice"] for record in agent_records(out).values()} == {nice}
     stats = json.loads((out / "server_stats.json").read_text())
     assert stats["mode"] == "realtime" and stats["exit"] == "done"
     # The lateness records account for every tick and command: a tick is served exactly when no
