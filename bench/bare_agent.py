@@ -176,8 +176,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--run", required=True, help="run id (the key prefix swarm/<run>/)")
     parser.add_argument("--log-dir", type=Path, required=True, help="write floor_<i>.json here")
     parser.add_argument("--timeout", type=float, default=60.0, help="seconds to connect and get the config")
+    parser.add_argument("--nice", type=int, default=0, help="niceness added before forking (as robot-agent)")
     args = parser.parse_args(argv)
     args.log_dir.mkdir(parents=True, exist_ok=True)
+    if args.nice:
+        os.nice(args.nice)  # the real agents' priority: the floor competes for the cores as they do
     children = []
     sys.stdout.flush()
     sys.stderr.flush()

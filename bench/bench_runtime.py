@@ -177,8 +177,8 @@ class Floor:
     the real agents have sent ``start_tick`` commands each, once every bare agent is up, and
     ``end_tick``: start-up and exit excluded; each set's ticks are the commands it sent meanwhile)."""
 
-    def __init__(self, count: int, log_dir: Path, start_tick: int, end_tick: int):
-        self.count, self.log_dir = count, log_dir
+    def __init__(self, count: int, log_dir: Path, start_tick: int, end_tick: int, nice: int = AGENT_NICE):
+        self.count, self.log_dir, self.nice = count, log_dir, nice
         self.start_tick, self.end_tick = start_tick, end_tick
         self.process: subprocess.Popen | None = None
         self.session = None
@@ -195,7 +195,7 @@ class Floor:
             env = dict(os.environ, OPENBLAS_NUM_THREADS="1", OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
             command = [sys.executable, str(Path(__file__).resolve().parent / "bare_agent.py")]
             command += ["--robots", f"0-{self.count - 1}", "--connect", endpoint, "--run", run]
-            command += ["--log-dir", str(self.log_dir)]
+            command += ["--log-dir", str(self.log_dir), "--nice", str(self.nice)]
             self.process = subprocess.Popen(
                 command, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
             )
@@ -521,7 +521,8 @@ def floor_markdown(report: dict) -> list[str]:
         f"`python bench/bench_runtime.py --update-results` (alone: `--floor-only`): one lockstep run per N of"
         f" {settings.get('duration_s', 0):g} s of sim in which a bare agent per robot (`bench/bare_agent.py`:"
         " zenoh, msgpack and numpy only; the same pose key, neighbour count and payload sizes) runs beside"
-        " the real one. CPU per tick: user + system time of every agent process (all threads, /proc) over"
+        f" the real one, both at nice {settings.get('agent_nice', 0)}. CPU per tick: user + system time"
+        " of every agent process (all threads, /proc) over"
         " the same window of ticks (the middle 60%: start-up and exit excluded), per agent. 1-min load"
         f" average {report.get('floor_load_avg_before')} before the first run (the ratio is the figure"
         " that holds on a loaded machine).",
@@ -600,6 +601,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     out = output_dir(args) / "runtime.json"
+    nice = AGENT_NICE if args.agent_nice is None else args.agent_nice  # the real and the bare agents'
     floor_runs = len(args.counts) if args.floor_duration > 0 else 0
     timed_runs = sum(
         1 + len(args.modes) * (len(args.large_physics_hz) if n >= args.large else 1) for n in args.counts
@@ -635,7 +637,9 @@ def main(argv: list[str] | None = None) -> int:
             path.write_text(yaml.safe_dump(data))
             steps = round(duration_s / 0.05)
             edge = max(10, steps // 5)
-            bare = Floor(count, Path(work) / f"{data['name']}-bare", edge, steps - edge) if floor else None
+            bare = (
+                Floor(count, Path(work) / f"{data['name']}-bare", edge, steps - edge, nice) if floor else None
+            )
             result = run_once(
                 path,
                 Path(work) / data["name"],
@@ -682,7 +686,7 @@ def main(argv: list[str] | None = None) -> int:
         bar.close()
         report = json.loads(out.read_text()) if out.exists() else {"results": []}
         report.update(floor=floors, floor_load_avg_before=round(load_before, 2))
-        report["floor_settings"] = {"duration_s": args.floor_duration, "seed": args.seed}
+        report["floor_settings"] = {"duration_s": args.floor_duration, "seed": args.seed, "agent_nice": nice}
         out.write_text(json.dumps(report, indent=2) + "\n")
         out.with_suffix(".md").write_text(markdown(report))
         print(markdown(report))
@@ -695,7 +699,7 @@ def main(argv: list[str] | None = None) -> int:
             "topology": "random, p = min(0.6, 4 / (N - 1)), connected",
             "controller": "local_consensus",
             "seed": args.seed,
-            "agent_nice": AGENT_NICE if args.agent_nice is None else args.agent_nice,
+            "agent_nice": nice,
         },
         "machine": {
             "python": platform.python_version(),
@@ -708,7 +712,7 @@ def main(argv: list[str] | None = None) -> int:
         "results": results,
         "floor": floors,
         "floor_load_avg_before": round(load_before, 2),
-        "floor_settings": {"duration_s": args.floor_duration, "seed": args.seed},
+        "floor_settings": {"duration_s": args.floor_duration, "seed": args.seed, "agent_nice": nice},
     }
     first_large_hz = args.large_physics_hz[0]
     report["targets"] = targets_met(
