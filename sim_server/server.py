@@ -125,10 +125,10 @@ def _percentiles_ms(samples_s: list[float]) -> dict[str, float | int | None]:
 
 
 LATE_BINS = ((0, 0), (1, 1), (2, 4), (5, 19), (20, None))
-"""Bins of :func:`_histogram`: agents whose command of a tick was not in when the server stepped."""
+"""Bins of :func:`_late_histogram`: agents whose command of a tick was not in when the server stepped."""
 
 
-def _histogram(late_per_tick: list[int]) -> dict[str, int]:
+def _late_histogram(late_per_tick: list[int]) -> dict[str, int]:
     """Ticks by how many agents' commands were missing at the step ("0", "1", "2-4", "5-19", "20+")."""
     out = {}
     for low, high in LATE_BINS:
@@ -494,7 +494,7 @@ class SimServer:
             latency_histogram_ms=_latency_histogram_ms(latencies_s),
             publish_lag_ms=_percentiles_ms(publish_lags_s),
             slowest_command_ms=_percentiles_ms(slowest_s),
-            late_agents_per_tick=_histogram(late_per_tick),
+            late_agents_per_tick=_late_histogram(late_per_tick),
             overruns=overruns,
             physics_ms_per_tick=1e3 * physics_s / max(steps, 1),
             physics_cpu_ms_per_tick=1e3 * physics_cpu_s / max(steps, 1),

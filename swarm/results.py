@@ -3,7 +3,7 @@
 Layout::
 
     scenario.yaml       the resolved scenario, every default filled in
-    trajectory.jsonl    one line per tick, flushed as it happens:
+    trajectory.jsonl    one line per tick, written as it happens (the sim server batches 0.1 s):
                         {"tick", "time_s", "poses": [[x, y, theta], ...]}
     metrics.json        the outcome (see ``summarize``); ``partial`` when the run did not complete
     convergence.png     the metric over time (``convergence.png.json``: what it shows, swarm.report)
