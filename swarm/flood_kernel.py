@@ -5,6 +5,17 @@ One numba pass over every robot of every environment does the whole tick of
 messages), smoothed minimax target (damped Newton steps), steering MLP, the robot's saturation and
 the rotation to the world frame. Same arithmetic as the numpy reference ``FloodPolicy.raw_step`` (to rounding:
 ``tests/test_flood.py``); no fastmath, so the per-start results are those of the per-robot form.
+
+What makes it fast (``bench/bench_gnn.py``), none of which changes a bit of the results:
+
+- the target is a function of the memory alone, so it is computed only when the memory changed,
+  and not even then when a heard neighbour's last message carries this very memory (its target
+  came with it): on a line or cycle that is about half of the changed memories during the flood;
+- the steering MLP runs for a block of ``BLOCK`` robots at once, the innermost loop over the
+  block's robots (SIMD lanes), every robot's sums in the order of a per-robot loop;
+- no integer division per robot, no allocation per tick beyond the two outputs, the inbox bound
+  check once per neighbour-list object.
+
 Threads are used for large batches only (``swarm.kernels.PARALLEL_MIN_ROBOTS``).
 """
 
@@ -19,7 +30,7 @@ import numpy as np
 from swarm import flood_readout, kernels
 
 RELU, TANH = 0, 1
-CHUNKS = 64  # environments are split into this many chunks (threads), each with its own scratch
+BLOCK = 128  # robots whose steering MLP runs together (SIMD lanes)
 
 
 @numba.njit(cache=True)
@@ -123,6 +134,8 @@ def _flood_tick(
     max_step,
     tau_start,
     rho_eps,
+    block_size,
+    chunks,
     u_world,
     outbox,
 ):
@@ -130,8 +143,15 @@ def _flood_tick(
     message), neighbour lists ``(B, N, S)`` into the inbox's columns -> ``u_world (B, N, 2)``,
     ``outbox (B, N, 2P + 3)``. Steering layers flattened: layer l has weights
     ``steer_weights[offset : offset + out * in]`` (row-major ``(out, in)``),
-    ``steer_shapes[l] = (in, out)``."""
+    ``steer_shapes[l] = (in, out)``.
+
+    Robots go in blocks of ``block_size`` (a run-time value, so that LLVM vectorizes the lane loops
+    instead of unrolling them): per robot the memory, the target and the steering features;
+    then the steering MLP for the whole block at once, the innermost loop over the block's robots
+    (SIMD lanes; every robot's sums keep the order of a per-robot loop, so the bits do not change);
+    then per robot the saturation and the rotation to the world frame."""
     batch, count = poses.shape[0], poses.shape[1]
+    rows = batch * count
     slots = neighbour_index.shape[2]
     p_count = projections.shape[0]
     dim = 2 * p_count
@@ -139,102 +159,156 @@ def _flood_tick(
     widest = 3
     for layer in range(layers):
         widest = max(widest, steer_shapes[layer, 1])
-    chunks = min(batch, CHUNKS)
-    for chunk in numba.prange(chunks):  # scratch arrays once per chunk of environments
+    chunks = max(1, min(chunks, (rows + block_size - 1) // block_size))
+    for chunk in numba.prange(chunks):
         values = np.empty(dim)
         support = np.empty(dim)
         ux_all = np.empty(dim)
         uy_all = np.empty(dim)
         weight = np.empty(dim)
-        buffer_a = np.empty(widest)
-        buffer_b = np.empty(widest)
-        for row in range((chunk * batch) // chunks * count, ((chunk + 1) * batch) // chunks * count):
-            env = row // count
-            i = row % count
-            x = poses[env, i, 0]
-            y = poses[env, i, 1]
-            theta = poses[env, i, 2]
-            own_valid = inbox[env, i, dim + 2] > 0.0
-            for p in range(p_count):
-                projected = x * projections[p, 0] + y * projections[p, 1]
-                hi = projected
-                lo = -projected
-                if own_valid:
-                    hi = max(hi, inbox[env, i, p])
-                    lo = max(lo, inbox[env, i, p_count + p])
-                values[p] = hi
-                values[p_count + p] = lo
-            heard = False
-            for k in range(slots):
-                j = neighbour_index[env, i, k]
-                if j < 0:
-                    break
-                heard = True
+        hidden_in = np.zeros((widest, block_size))  # layer input, one column per robot of the block
+        hidden_out = np.zeros((widest, block_size))
+        cos_block = np.empty(block_size)
+        sin_block = np.empty(block_size)
+        heard_block = np.zeros(block_size, dtype=np.bool_)
+        first = (chunk * rows) // chunks
+        last = ((chunk + 1) * rows) // chunks
+        for block in range(first, last, block_size):
+            filled = min(block_size, last - block)
+            env_first = block // count
+            i_first = block % count
+            env = env_first
+            i = i_first - 1
+            for lane in range(filled):  # robot i of environment env: row block + lane
+                i += 1
+                if i == count:
+                    i = 0
+                    env += 1
+                x = poses[env, i, 0]
+                y = poses[env, i, 1]
+                theta = poses[env, i, 2]
+                own_valid = inbox[env, i, dim + 2] > 0.0
+                for p in range(p_count):
+                    projected = x * projections[p, 0] + y * projections[p, 1]
+                    hi = projected
+                    lo = -projected
+                    if own_valid:
+                        hi = max(hi, inbox[env, i, p])
+                        lo = max(lo, inbox[env, i, p_count + p])
+                    values[p] = hi
+                    values[p_count + p] = lo
+                heard = False
+                for k in range(slots):
+                    j = neighbour_index[env, i, k]
+                    if j < 0:
+                        break
+                    heard = True
+                    for d in range(dim):
+                        values[d] = max(values[d], inbox[env, j, d])
+                changed = not own_valid
                 for d in range(dim):
-                    values[d] = max(values[d], inbox[env, j, d])
-            changed = not own_valid
-            for d in range(dim):
-                outbox[env, i, d] = values[d]
-                changed = changed or values[d] != inbox[env, i, d]
-            outbox[env, i, dim + 2] = 1.0
-            if changed:
-                cx, cy = _target(
-                    values,
-                    p_count,
-                    norms,
-                    unit,
-                    tau_share,
-                    newton_steps,
-                    hessian_eps,
-                    max_step,
-                    tau_start,
-                    support,
-                    ux_all,
-                    uy_all,
-                    weight,
-                )
-            else:  # the same memory as last tick: the same target (a function of the memory alone)
-                cx = inbox[env, i, dim]
-                cy = inbox[env, i, dim + 1]
-            outbox[env, i, dim] = cx
-            outbox[env, i, dim + 1] = cy
-            if not heard:
-                u_world[env, i, 0] = 0.0
-                u_world[env, i, 1] = 0.0
-                continue
-            c = math.cos(theta)
-            s = math.sin(theta)
-            dx = cx - x
-            dy = cy - y
-            rx = c * dx + s * dy
-            ry = -s * dx + c * dy
-            rho = math.sqrt(rx * rx + ry * ry + rho_eps * rho_eps)
-            buffer_a[0] = rx / rho
-            buffer_a[1] = ry / rho
-            buffer_a[2] = min(rho / rho_cap, 1.0)
+                    outbox[env, i, d] = values[d]
+                    changed |= values[d] != inbox[env, i, d]  # no short cut: no branch
+                outbox[env, i, dim + 2] = 1.0
+                reused = not changed
+                if reused:  # the same memory as last tick: the same target (a function of the memory alone)
+                    cx = inbox[env, i, dim]
+                    cy = inbox[env, i, dim + 1]
+                else:  # a neighbour whose last memory is this one sent its target with it
+                    for k in range(slots):
+                        j = neighbour_index[env, i, k]
+                        if j < 0:
+                            break
+                        if inbox[env, j, dim + 2] > 0.0:
+                            same = True
+                            for d in range(dim):
+                                if values[d] != inbox[env, j, d]:
+                                    same = False
+                                    break
+                            if same:
+                                cx = inbox[env, j, dim]
+                                cy = inbox[env, j, dim + 1]
+                                reused = True
+                                break
+                if not reused:
+                    cx, cy = _target(
+                        values,
+                        p_count,
+                        norms,
+                        unit,
+                        tau_share,
+                        newton_steps,
+                        hessian_eps,
+                        max_step,
+                        tau_start,
+                        support,
+                        ux_all,
+                        uy_all,
+                        weight,
+                    )
+                outbox[env, i, dim] = cx
+                outbox[env, i, dim + 1] = cy
+                heard_block[lane] = heard
+                c = math.cos(theta)
+                s = math.sin(theta)
+                cos_block[lane] = c
+                sin_block[lane] = s
+                dx = cx - x
+                dy = cy - y
+                rx = c * dx + s * dy
+                ry = -s * dx + c * dy
+                rho = math.sqrt(rx * rx + ry * ry + rho_eps * rho_eps)
+                hidden_in[0, lane] = rx / rho
+                hidden_in[1, lane] = ry / rho
+                hidden_in[2, lane] = min(rho / rho_cap, 1.0)
             offset = 0
-            for layer in range(layers):
+            for layer in range(layers):  # the steering MLP, all lanes of the block together
                 fan_in = steer_shapes[layer, 0]
                 fan_out = steer_shapes[layer, 1]
                 for o in range(fan_out):
-                    z = steer_biases[layer, o]
-                    base = offset + o * fan_in
-                    for q in range(fan_in):
-                        z += steer_weights[base + q] * buffer_a[q]
+                    bias = steer_biases[layer, o]
+                    for lane in range(block_size):
+                        hidden_out[o, lane] = bias
+                # inputs outermost: every output's sum still runs over q = 0, 1, ... in order, and
+                # consecutive updates of one output row are fan_out updates apart (no store-to-load stall)
+                for q in range(fan_in):
+                    for o in range(fan_out):
+                        w = steer_weights[offset + o * fan_in + q]
+                        for lane in range(block_size):
+                            hidden_out[o, lane] += w * hidden_in[q, lane]
+                for o in range(fan_out):
                     if layer < layers - 1:
-                        z = max(z, 0.0) if activation == RELU else math.tanh(z)
-                    buffer_b[o] = z
+                        if activation == RELU:
+                            for lane in range(block_size):
+                                hidden_out[o, lane] = max(hidden_out[o, lane], 0.0)
+                        else:
+                            for lane in range(block_size):
+                                hidden_out[o, lane] = math.tanh(hidden_out[o, lane])
                 offset += fan_out * fan_in
                 for o in range(fan_out):
-                    buffer_a[o] = buffer_b[o]
-            ux = output_scale * buffer_a[0]
-            uy = output_scale * buffer_a[1]
-            biggest = abs(ux) + ratio * abs(uy)
-            scale = min(1.0, v_max / max(biggest, 1e-12))
-            ux *= scale
-            uy *= scale
-            u_world[env, i, 0] = c * ux - s * uy
-            u_world[env, i, 1] = s * ux + c * uy
+                    for lane in range(block_size):
+                        hidden_in[o, lane] = hidden_out[o, lane]
+            env = env_first
+            i = i_first - 1
+            for lane in range(filled):
+                i += 1
+                if i == count:
+                    i = 0
+                    env += 1
+                if not heard_block[lane]:
+                    u_world[env, i, 0] = 0.0
+                    u_world[env, i, 1] = 0.0
+                else:
+                    ux = output_scale * hidden_in[0, lane]
+                    uy = output_scale * hidden_in[1, lane]
+                    biggest = abs(ux) + ratio * abs(uy)
+                    scale = min(1.0, v_max / max(biggest, 1e-12))
+                    ux *= scale
+                    uy *= scale
+                    c = cos_block[lane]
+                    s = sin_block[lane]
+                    u_world[env, i, 0] = c * ux - s * uy
+                    u_world[env, i, 1] = s * ux + c * uy
 
 
 # Typed as plain callables: numba's Dispatcher declares a narrower __call__ than the compiled kernel.
@@ -277,11 +351,15 @@ def act(policy, poses: np.ndarray, inbox: np.ndarray, heard) -> tuple[np.ndarray
     batch, count = poses.shape[:2]
     if inbox.ndim != 3 or inbox.shape[-1] != policy.message_dim or inbox.shape[:2] < (batch, count):
         raise ValueError(f"inbox of shape {inbox.shape}: expected (B, >= N, {policy.message_dim})")
-    if heard.index.size and heard.index.max() >= inbox.shape[1]:
-        raise ValueError("a neighbour index points past the inbox")
+    checked = getattr(policy, "_checked_links", None)  # a fixed graph: the same Links every tick
+    if checked is None or checked[0] is not heard or checked[1] != inbox.shape[1]:
+        if heard.index.size and heard.index.max() >= inbox.shape[1]:
+            raise ValueError("a neighbour index points past the inbox")
+        policy._checked_links = (heard, inbox.shape[1])
     u_world = np.empty((batch, count, 2))
     outbox = np.empty((batch, count, policy.message_dim))
-    kernel = _parallel if batch * count >= kernels.PARALLEL_MIN_ROBOTS else _serial
+    parallel = batch * count >= kernels.PARALLEL_MIN_ROBOTS
+    kernel = _parallel if parallel else _serial
     kernel(
         np.ascontiguousarray(poses, dtype=np.float64),
         np.ascontiguousarray(inbox, dtype=np.float64),
@@ -291,6 +369,8 @@ def act(policy, poses: np.ndarray, inbox: np.ndarray, heard) -> tuple[np.ndarray
         flood_readout.MAX_STEP,
         flood_readout.TAU_START,
         flood_readout.RHO_EPS_M,
+        BLOCK,
+        4 * numba.get_num_threads() if parallel else 1,  # chunks, each with its own scratch
         u_world,
         outbox,
     )

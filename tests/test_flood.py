@@ -131,6 +131,38 @@ def test_per_robot_form_equals_batched_kernel(tmp_path):
     np.testing.assert_allclose(messages, sim.inbox, rtol=0, atol=1e-9)
 
 
+def test_batched_kernel_over_blocks_threads_and_targets_taken_from_neighbours(tmp_path, monkeypatch):
+    """The compiled forward runs robots in blocks of ``flood_kernel.BLOCK`` (140 robots: a full block and
+    a partial one), on threads or not, and takes the target a neighbour sent with the very memory a
+    robot now has instead of recomputing it: all the same as the per-robot form, which computes every
+    target itself, to 1e-9, and the threaded run bit for bit the serial one."""
+    from swarm import flood_kernel
+
+    policy = _policy(tmp_path, _random_model(15))
+    batch, count, ticks = 20, 7, 40
+    assert flood_kernel.BLOCK < batch * count < 2 * flood_kernel.BLOCK
+    poses = _poses(16, batch, count)
+    adjacency = graphs.line(count)
+    sim = KinematicSim(ROBOT, policy, DT, poses, adjacency=adjacency)
+    trajectory, taken = [poses.copy()], 0
+    for _ in range(ticks):
+        before = sim.inbox.copy()
+        trajectory.append(sim.step().copy())
+        memory = sim.inbox[..., : policy.memory_dim]
+        changed = np.any(memory != before[..., : policy.memory_dim], axis=-1)
+        for j in (np.arange(count) - 1, np.arange(count) + 1):  # the line's neighbours
+            inside = (j >= 0) & (j < count)
+            same = np.all(before[:, np.clip(j, 0, count - 1), : policy.memory_dim] == memory, axis=-1)
+            taken += int(np.sum(changed & same & inside))
+    assert taken > 50  # the reuse is exercised
+    one_by_one, messages = _per_robot_run(policy, poses, adjacency, ticks)
+    np.testing.assert_allclose(one_by_one, np.array(trajectory), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(messages, sim.inbox, rtol=0, atol=1e-9)
+    monkeypatch.setattr(kernels, "PARALLEL_MIN_ROBOTS", 0)
+    threaded = KinematicSim(ROBOT, policy, DT, poses, adjacency=adjacency).rollout(ticks)
+    np.testing.assert_array_equal(threaded, np.array(trajectory))
+
+
 def test_flood_reaches_k_hops_in_k_ticks(tmp_path):
     """On a line, robot 0's memory at tick k is the max over robots j <= k hops away of their
     projections at ticks <= k - j: hop j arrives j ticks late, never earlier."""
