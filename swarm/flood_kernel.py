@@ -11,8 +11,9 @@ What makes it fast (``bench/bench_gnn.py``), none of which changes a bit of the 
 - the target is a function of the memory alone, so it is computed only when the memory changed,
   and not even then when a heard neighbour's last message carries this very memory (its target
   came with it): on a line or cycle that is about half of the changed memories during the flood;
-- the steering MLP runs for a block of ``BLOCK`` robots at once, the innermost loop over the
-  block's robots (SIMD lanes), every robot's sums in the order of a per-robot loop;
+- the steering features and the steering MLP run for a block of ``BLOCK`` robots at once, the
+  innermost loop over the block's robots (SIMD lanes), every robot's sums in the order of a
+  per-robot loop (no fastmath: no reassociation, no fused multiply-add);
 - no integer division per robot, no allocation per tick beyond the two outputs, the inbox bound
   check once per neighbour-list object.
 
@@ -168,8 +169,10 @@ def _flood_tick(
         weight = np.empty(dim)
         hidden_in = np.zeros((widest, block_size))  # layer input, one column per robot of the block
         hidden_out = np.zeros((widest, block_size))
-        cos_block = np.empty(block_size)
-        sin_block = np.empty(block_size)
+        cos_block = np.zeros(block_size)  # zeros: the lanes past a partial block stay finite
+        sin_block = np.zeros(block_size)
+        dx_block = np.zeros(block_size)
+        dy_block = np.zeros(block_size)
         heard_block = np.zeros(block_size, dtype=np.bool_)
         first = (chunk * rows) // chunks
         last = ((chunk + 1) * rows) // chunks
@@ -249,12 +252,15 @@ def _flood_tick(
                 outbox[env, i, dim] = cx
                 outbox[env, i, dim + 1] = cy
                 heard_block[lane] = heard
-                c = math.cos(theta)
-                s = math.sin(theta)
-                cos_block[lane] = c
-                sin_block[lane] = s
-                dx = cx - x
-                dy = cy - y
+                cos_block[lane] = math.cos(theta)
+                sin_block[lane] = math.sin(theta)
+                dx_block[lane] = cx - x
+                dy_block[lane] = cy - y
+            for lane in range(block_size):  # the steering features, all lanes together
+                c = cos_block[lane]
+                s = sin_block[lane]
+                dx = dx_block[lane]
+                dy = dy_block[lane]
                 rx = c * dx + s * dy
                 ry = -s * dx + c * dy
                 rho = math.sqrt(rx * rx + ry * ry + rho_eps * rho_eps)
@@ -276,18 +282,17 @@ def _flood_tick(
                         w = steer_weights[offset + o * fan_in + q]
                         for lane in range(block_size):
                             hidden_out[o, lane] += w * hidden_in[q, lane]
-                for o in range(fan_out):
-                    if layer < layers - 1:
-                        if activation == RELU:
-                            for lane in range(block_size):
-                                hidden_out[o, lane] = max(hidden_out[o, lane], 0.0)
-                        else:
-                            for lane in range(block_size):
-                                hidden_out[o, lane] = math.tanh(hidden_out[o, lane])
+                for o in range(fan_out):  # the activation, into the next layer's input
+                    if layer == layers - 1:
+                        for lane in range(block_size):
+                            hidden_in[o, lane] = hidden_out[o, lane]
+                    elif activation == RELU:
+                        for lane in range(block_size):
+                            hidden_in[o, lane] = max(hidden_out[o, lane], 0.0)
+                    else:
+                        for lane in range(block_size):
+                            hidden_in[o, lane] = math.tanh(hidden_out[o, lane])
                 offset += fan_out * fan_in
-                for o in range(fan_out):
-                    for lane in range(block_size):
-                        hidden_in[o, lane] = hidden_out[o, lane]
             env = env_first
             i = i_first - 1
             for lane in range(filled):
@@ -312,8 +317,10 @@ def _flood_tick(
 
 
 # Typed as plain callables: numba's Dispatcher declares a narrower __call__ than the compiled kernel.
-_serial: Callable[..., None] = numba.njit(cache=True)(_flood_tick)
-_parallel: Callable[..., None] = numba.njit(cache=True, parallel=True)(_flood_tick)
+# error_model="numpy": a float division by zero gives inf or nan as in numpy (``FloodPolicy``) instead of
+# raising, which lets LLVM vectorize the lane loops that divide; no other result changes.
+_serial: Callable[..., None] = numba.njit(cache=True, error_model="numpy")(_flood_tick)
+_parallel: Callable[..., None] = numba.njit(cache=True, parallel=True, error_model="numpy")(_flood_tick)
 
 
 def packed(policy) -> tuple:
