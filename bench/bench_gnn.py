@@ -366,6 +366,8 @@ def reproduce_cell(model: str, cell: str, cells_dir: Path) -> dict:
         model=model,
     )
     committed_path = cell_path(cells_dir / "cells", config, topology, int(count), "gnn")
+    if not committed_path.is_file():  # another model: its cells are under its own hash
+        return {"cell": cell, "skipped": f"no committed cell {committed_path}"}
     numba.set_num_threads(1)
     start, start_cpu = time.perf_counter(), time.process_time()
     result = run_cell(config, topology, int(count), "gnn")
@@ -425,7 +427,9 @@ def main() -> None:
                 f"{100 * row['recompute']['target_recomputed_share']:.1f}% of robot-steps"
             )
     reproduction = reproduce_cell(args.model, args.cell, Path(args.cells)) if args.cell else None
-    if reproduction:
+    if reproduction and "skipped" in reproduction:
+        print(f"cell {args.cell}: skipped, {reproduction['skipped']}")
+    elif reproduction:
         print(
             f"cell {reproduction['cell']}: {reproduction['cpu_s']} CPU s, every start's time as committed: "
             f"{reproduction['every_start_time_identical']}"
