@@ -299,8 +299,7 @@ def run_once(
     ``memory_at``: sample the processes' memory once this many ticks are done (None: never; reading
     ``/proc/<pid>/smaps_rollup`` of every agent stalls them briefly, which shows in the latency tail).
     ``floor``: run bare agents beside the real ones and measure both (``result["floor"]``)."""
-    load_before = os.getloadavg()[0]
-    machine_before, children_before = _cpu_busy_cores(), _children_cpu_s()
+    clock = MachineClock()
     started_s = time.perf_counter()
     process = subprocess.Popen(
         [sys.executable, "-m", "swarm.cli", "run", str(scenario_path), "--out", str(out_dir), "--quiet"]
@@ -341,19 +340,58 @@ def run_once(
     floor_result = floor.finish() if floor is not None else None
     if process.returncode not in (0, 1):
         return {"error": f"swarm run exited {process.returncode}: {stderr.strip()[-400:]}"}
-    busy, total = (after - before for after, before in zip(_cpu_busy_cores(), machine_before, strict=True))
-    cores = os.cpu_count() or 1
-    machine_cores = cores * busy / total if total else 0.0
-    run_cores = (_children_cpu_s() - children_before) / wall_s
+    machine = clock.after(wall_s)
     metrics = json.loads((out_dir / "metrics.json").read_text())
     records = [json.loads(p.read_text()) for p in (out_dir / "logs").glob("agent_*.json")]
-    agent_cpu = [
-        (r["cpu_s"] - r.get("cpu_ready_s", 0.0)) / r["ticks"]
-        for r in records
-        if r.get("cpu_s") is not None and r.get("ticks")
-    ]
     stats = json.loads((out_dir / "server_stats.json").read_text())
     runtime = metrics["runtime"]
+    return (
+        server_figures(stats, steps)
+        | {
+            "first_tick_s": runtime.get("startup_s"),
+            "agents_ready_s": runtime.get("agents_ready_s"),
+            "cli_to_first_tick_s": None if cli_first_tick_s is None else round(cli_first_tick_s, 3),
+            "agent_pss_mib": memory.get("pss_mean"),
+            "agent_uss_mib": memory.get("uss_mean"),
+            "agent_rss_mib": memory.get("rss_mean"),
+            "agents_sampled": memory.get("agents_sampled"),
+            "server_pss_mib": server_pss,
+            "launcher_pss_mib": launcher_pss,
+            "messages_lost": runtime.get("messages_lost"),
+            "agent_cpu_ms_per_tick": agent_cpu_ms_per_tick(records),
+            "server_cpu_ms_per_tick": server_cpu_ms_per_tick(stats, steps),
+            "wall_s": runtime.get("wall_s"),
+        }
+        | machine
+        | ({} if floor_result is None else {"floor": floor_result})
+    )
+
+
+class MachineClock:
+    """The machine's load and busy cores while one run goes on: ``after`` gives the cores this
+    process's (waited-for) children used per wall second, those other processes kept busy meanwhile
+    (``/proc/stat`` minus the run's), and the 1-min load average before and after."""
+
+    def __init__(self) -> None:
+        self.load_before = os.getloadavg()[0]
+        self.machine_before, self.children_before = _cpu_busy_cores(), _children_cpu_s()
+
+    def after(self, wall_s: float) -> dict:
+        busy, total = (
+            after - before for after, before in zip(_cpu_busy_cores(), self.machine_before, strict=True)
+        )
+        machine_cores = (os.cpu_count() or 1) * busy / total if total else 0.0
+        run_cores = (_children_cpu_s() - self.children_before) / wall_s
+        return {
+            "run_cores": round(run_cores, 2),
+            "other_cores": round(max(0.0, machine_cores - run_cores), 2),
+            "load_avg_1min_before": round(self.load_before, 2),
+            "load_avg_1min_after": round(os.getloadavg()[0], 2),
+        }
+
+
+def server_figures(stats: dict, steps: int) -> dict:
+    """Ticks served, latency, real-time factor and the tick's split, from ``server_stats.json``."""
     latency = stats.get("latency_ms", {})
     ticks = stats.get("ticks") or steps
     return {
@@ -372,28 +410,26 @@ def run_once(
         "publish_lag_ms": stats.get("publish_lag_ms"),
         "slowest_command_ms": stats.get("slowest_command_ms"),
         "late_agents_per_tick": stats.get("late_agents_per_tick"),
-        "first_tick_s": runtime.get("startup_s"),
-        "agents_ready_s": runtime.get("agents_ready_s"),
-        "cli_to_first_tick_s": None if cli_first_tick_s is None else round(cli_first_tick_s, 3),
-        "agent_pss_mib": memory.get("pss_mean"),
-        "agent_uss_mib": memory.get("uss_mean"),
-        "agent_rss_mib": memory.get("rss_mean"),
-        "agents_sampled": memory.get("agents_sampled"),
-        "server_pss_mib": server_pss,
-        "launcher_pss_mib": launcher_pss,
-        "messages_lost": runtime.get("messages_lost"),
-        "agent_cpu_ms_per_tick": round(1e3 * sum(agent_cpu) / len(agent_cpu), 4) if agent_cpu else None,
-        "server_cpu_ms_per_tick": (
-            round(1e3 * (stats["cpu_s"] - stats.get("cpu_ready_s", 0.0)) / ticks, 3)
-            if stats.get("cpu_s") is not None
-            else None
-        ),
-        "wall_s": runtime.get("wall_s"),
-        "run_cores": round(run_cores, 2),
-        "other_cores": round(max(0.0, machine_cores - run_cores), 2),
-        "load_avg_1min_before": round(load_before, 2),
-        "load_avg_1min_after": round(os.getloadavg()[0], 2),
-    } | ({} if floor_result is None else {"floor": floor_result})
+        "invalid_commands": stats.get("invalid_commands"),
+    }
+
+
+def server_cpu_ms_per_tick(stats: dict, steps: int) -> float | None:
+    """The server process's CPU (every thread, Zenoh's router included) per tick, start-up excluded."""
+    if stats.get("cpu_s") is None:
+        return None
+    ticks = stats.get("ticks") or steps
+    return round(1e3 * (stats["cpu_s"] - stats.get("cpu_ready_s", 0.0)) / ticks, 3)
+
+
+def agent_cpu_ms_per_tick(records: list[dict]) -> float | None:
+    """Mean over the agents of their process CPU (every thread) from ready to exit per tick computed."""
+    per_tick = [
+        (r["cpu_s"] - r.get("cpu_ready_s", 0.0)) / r["ticks"]
+        for r in records
+        if r.get("cpu_s") is not None and r.get("ticks")
+    ]
+    return round(1e3 * sum(per_tick) / len(per_tick), 4) if per_tick else None
 
 
 def _fmt(value: object, digits: int = 2) -> str:
