@@ -44,6 +44,7 @@ import math
 import os
 import signal
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -61,9 +62,15 @@ and never touch (starts are 0.4 m apart, bumpers 0.12 m)."""
 ROLES = ("floor", "stand-in", "answer")
 _PR_SET_PDEATHSIG = 1
 
+SIM_GONE_WAIT_S = 30.0
+"""Stand-ins and answerers that computed the last tick wait this long at most for the sim's token to
+go before they exit, as ``robot_agent`` does: 100 agents leaving at once would load the server's last
+tick."""
+
 _in_loop = False
 """SIGTERM interrupts only the tick loop's ``recv`` (elsewhere it is remembered: ``_stopping``)."""
 _stopping = False
+_sim_gone = threading.Event()
 
 
 class _Stop(BaseException):
@@ -73,6 +80,7 @@ class _Stop(BaseException):
 def _stop(*_: object) -> None:
     global _stopping
     _stopping = True
+    _sim_gone.set()  # ends the wait after the last tick
     if _in_loop:
         raise _Stop
 
@@ -80,7 +88,9 @@ def _stop(*_: object) -> None:
 def _on_sim_alive(sample: zenoh.Sample) -> None:
     """The sim's token went: stop (the handler interrupts the loop's blocking ``recv``)."""
     if sample.kind == zenoh.SampleKind.DELETE:
-        os.kill(os.getpid(), signal.SIGTERM)
+        _sim_gone.set()
+        if _in_loop:
+            os.kill(os.getpid(), signal.SIGTERM)
 
 
 def _config(connect: list[str]) -> zenoh.Config:
@@ -207,6 +217,8 @@ def run_agent(
             reason = "stopped"
         finally:
             _in_loop = False
+        if reason == "done" and role != "floor":
+            _sim_gone.wait(SIM_GONE_WAIT_S)  # idle; SIGTERM ends it too
         for entity in reversed(entities):
             entity.undeclare()
         record.update(ticks=state["ticks"], first_tick=state["first_tick"], last_tick=state["tick"])
