@@ -335,4 +335,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    try:
+        sys.exit(main())
+    except KeyboardInterrupt:  # Ctrl-C reaches the runs too (one process group); run_standin stops its own
+        print("runtime_limit: interrupted", file=sys.stderr)
+        sys.exit(130)
