@@ -23,6 +23,7 @@ def test_stand_in_agents_drive_a_real_lockstep_run_to_the_end(tmp_path: Path, ro
     count, duration_s = 3, 3.0
     steps = round(duration_s / 0.05)
     data = runtime_limit.scenario_data(count, "lockstep", duration_s, None, None, seed=2)
+    data["sim"]["deadline"] = 60.0  # a stalled process is waited for: every tick served is then causal
     scenario = tmp_path / "limit.yaml"
     scenario.write_text(yaml.safe_dump(data))
     out = tmp_path / "run"
