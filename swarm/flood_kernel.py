@@ -200,7 +200,7 @@ def _flood_tick(
                         lo = max(lo, inbox[env, i, p_count + p])
                     values[p] = hi
                     values[p_count + p] = lo
-                heard = False
+                heard = inbox[env, i, dim + 2] > 1.5  # flag 2: it has heard a neighbour at an earlier tick
                 for k in range(slots):
                     j = neighbour_index[env, i, k]
                     if j < 0:
@@ -212,7 +212,7 @@ def _flood_tick(
                 for d in range(dim):
                     outbox[env, i, d] = values[d]
                     changed |= values[d] != inbox[env, i, d]  # no short cut: no branch
-                outbox[env, i, dim + 2] = 1.0
+                outbox[env, i, dim + 2] = 2.0 if heard else 1.0  # a real message; 2: has heard someone
                 reused = not changed
                 if reused:  # the same memory as last tick: the same target (a function of the memory alone)
                     cx = inbox[env, i, dim]

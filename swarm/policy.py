@@ -345,10 +345,13 @@ def _check_format(metadata: dict) -> None:
 class FloodPolicy:
     """The recurrent max-flooding GNN (``swarm.models.flood``, kind ``gnn_flood``) with numpy.
 
-    Message of a robot: ``[h^+ (P), h^- (P), c_x, c_y, 1]``: its memory, the target it computed from
+    Message of a robot: ``[h^+ (P), h^- (P), c_x, c_y, f]``: its memory, the target it computed from
     it (a function of the memory alone, which lets the batched kernel skip the readout while the
-    memory does not change; neighbours ignore it) and a 1 that marks a real message (the engine's
-    inbox starts as zeros). Equations: ``swarm.models.flood``.
+    memory does not change; neighbours ignore it) and a flag ``f`` that marks a real message (the
+    engine's inbox starts as zeros): 1 while the robot has never heard a neighbour, 2 once it has
+    (neighbours ignore it too). A robot holds still until it has heard a neighbour once; from then
+    on it steers toward its memory's target whether or not it hears anybody in a tick (a lost tick
+    leaves its memory as it was). Equations: ``swarm.models.flood``.
     """
 
     centralized = False
@@ -392,8 +395,10 @@ class FloodPolicy:
         return FloodPolicy(self.metadata, self._arrays, self.robot, self.robot_count)
 
     def reset(self) -> None:
-        """Forget the memory (a robot that starts, or restarts, knows only what it sees from then on)."""
+        """Forget the memory and that it has heard anybody (a robot that starts, or restarts, knows
+        only what it sees from then on, and holds still until it hears a neighbour)."""
         self._memory: np.ndarray | None = None
+        self._has_heard = False
 
     # -- the network, any leading shape ---------------------------------------------------------
 
@@ -443,20 +448,30 @@ class FloodPolicy:
         return self.output_scale_mps * _mlp(self._steer, features, self._steer_activation)
 
     def raw_step(
-        self, poses: np.ndarray, memory: np.ndarray | None, inbox: np.ndarray, heard: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
+        self,
+        poses: np.ndarray,
+        memory: np.ndarray | None,
+        inbox: np.ndarray,
+        heard: np.ndarray,
+        has_heard: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The numpy reference of the whole tick, dense: poses ``(B, N, 3)``, own memory ``(B, N, 2P)``
-        or None, neighbours' last memories ``inbox (B, N, 2P)``, ``heard (B, N, N)`` bool ->
-        raw ``u_local`` (zero where nobody was heard) and the new memory. Same as ``FloodGNN.step``."""
+        or None, neighbours' last memories ``inbox (B, N, 2P)``, ``heard (B, N, N)`` bool, whether
+        each robot has heard a neighbour at an earlier tick ``has_heard (B, N)`` bool (None: nobody
+        has) -> raw ``u_local`` (zero where a robot has never heard anybody, this tick included), the
+        new memory and the new ``has_heard``. Same as ``FloodGNN.step``."""
         values = self.own_values(poses[..., :2])
         if memory is not None:
             values = np.maximum(values, memory)
         if heard.any():
             masked = np.where(heard[..., None], inbox[:, None, :, :], -np.inf)
             values = np.maximum(values, masked.max(axis=2))
+        moving = heard.any(axis=-1)
+        if has_heard is not None:
+            moving = moving | has_heard
         u_local = self.steer_local(poses, self.target(values))
-        u_local[~heard.any(axis=-1)] = 0.0
-        return u_local, values
+        u_local[~moving] = 0.0
+        return u_local, values, moving
 
     # -- the controller forms --------------------------------------------------------------------
 
@@ -481,9 +496,10 @@ class FloodPolicy:
         if len(heard):
             values = np.maximum(values, heard[:, : self.memory_dim].max(axis=0))
         self._memory = values
+        self._has_heard = self._has_heard or bool(len(heard))
         target = self.target(values)
-        message = np.concatenate([values, target, [1.0]])
-        if not len(heard):
+        message = np.concatenate([values, target, [2.0 if self._has_heard else 1.0]])
+        if not self._has_heard:  # it has never heard anybody: it holds still
             return np.zeros(2), message
         u_local = saturate_local_velocity(self.steer_local(pose, target), self.robot)
         return rotate(u_local, pose[2]), message

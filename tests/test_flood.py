@@ -59,24 +59,26 @@ def test_numpy_equals_torch_before_saturation(tmp_path, activation):
     poses[1, :, :2] = 1e-6 * poses[1, :, :2] + 0.7  # a tiny swarm: widths of micrometres
     heard = np.broadcast_to(graphs.cycle(count) > 0, (batch, count, count)).copy()
     heard[2, 3] = False  # a robot that hears nobody
-    memory_np = memory_t = None
+    heard[1, 4] = False  # one that hears nobody after tick 1 (tick 2 on): it keeps steering
+    memory_np = memory_t = flag_np = flag_t = None
     inbox = np.zeros((batch, count, model.message_dim))
     rng = np.random.default_rng(3)
     for tick in range(25):
-        tick_heard = heard if tick else np.zeros_like(heard)
-        u_np, new_np = policy.raw_step(poses, memory_np, inbox, tick_heard)
+        tick_heard = heard.copy() if tick else np.zeros_like(heard)
+        if tick == 1:
+            tick_heard[1, 4] = graphs.cycle(count)[4] > 0
+        u_np, new_np, flag_np = policy.raw_step(poses, memory_np, inbox, tick_heard, flag_np)
         with torch.no_grad():
-            u_t, new_t = model.step(
-                torch.tensor(poses),
-                None if memory_t is None else memory_t,
-                torch.tensor(inbox),
-                torch.tensor(tick_heard),
+            u_t, new_t, flag_t = model.step(
+                torch.tensor(poses), memory_t, torch.tensor(inbox), torch.tensor(tick_heard), flag_t
             )
         np.testing.assert_allclose(u_np, u_t.numpy(), rtol=0, atol=1e-9)
         np.testing.assert_allclose(new_np, new_t.numpy(), rtol=0, atol=1e-12)
-        assert np.all(u_np[2, 3] == 0.0)
+        np.testing.assert_array_equal(flag_np, flag_t.numpy())
+        assert np.all(u_np[2, 3] == 0.0)  # never heard anybody
         if tick:
             assert np.abs(u_np[0]).max() > 1e-3  # not trivially zero
+            assert np.abs(u_np[1, 4]).max() > 1e-3  # heard once (tick 1): moves in every later tick
         memory_np, memory_t, inbox = new_np, new_t, new_np
         poses = poses + rng.normal(0.0, 0.05, poses.shape)
     # a robot on its own target (tiny rho): the same raw output in both forms
@@ -87,8 +89,9 @@ def test_numpy_equals_torch_before_saturation(tmp_path, activation):
     np.testing.assert_allclose(policy.steer_local(on_target, target[None, None]), raw_t.numpy(), atol=1e-9)
 
 
-def _per_robot_run(policy: FloodPolicy, poses: np.ndarray, adjacency: np.ndarray, ticks: int):
-    """Each robot its own FloodPolicy instance, fed the messages its neighbours sent last tick."""
+def _per_robot_run(policy: FloodPolicy, poses: np.ndarray, adjacency: np.ndarray, ticks: int, heard_until=None):
+    """Each robot its own FloodPolicy instance, fed the messages its neighbours sent last tick (the
+    messages of ticks >= ``heard_until`` are never heard: a link dropped from then on)."""
     batch, count = poses.shape[:2]
     agents = [[policy.fresh() for _ in range(count)] for _ in range(batch)]
     messages = np.zeros((batch, count, policy.message_dim))
@@ -113,7 +116,9 @@ def _per_robot_run(policy: FloodPolicy, poses: np.ndarray, adjacency: np.ndarray
             ROBOT.v_max_mps,
             DT,
         )
-        messages, heard = outgoing, np.broadcast_to(adjacency > 0, heard.shape)
+        sent_at = len(trajectory) - 1
+        kept = heard_until is None or sent_at < heard_until
+        messages, heard = outgoing, np.broadcast_to((adjacency > 0) & kept, heard.shape)
         trajectory.append(poses.copy())
     return np.array(trajectory), messages
 
@@ -161,6 +166,58 @@ def test_batched_kernel_over_blocks_threads_and_targets_taken_from_neighbours(tm
     monkeypatch.setattr(kernels, "PARALLEL_MIN_ROBOTS", 0)
     threaded = KinematicSim(ROBOT, policy, DT, poses, adjacency=adjacency).rollout(ticks)
     np.testing.assert_array_equal(threaded, np.array(trajectory))
+
+
+def test_a_robot_that_heard_once_keeps_steering_toward_its_memory_target():
+    """Hand-checked with the shipped model: robot A at the origin facing +x, robot B 4 m ahead. At
+    tick 0 nobody has heard anybody: both hold still. At tick 1 A hears B's tick-0 message, so its
+    memory holds both positions and its target is their minimum enclosing circle's centre, (2, 0).
+    At tick 2 A hears nobody: it still drives at (nearly) full speed toward (2, 0), which is +x.
+    Robot C never hears anybody and holds still in every tick; restarted, A holds still again."""
+    from pathlib import Path
+
+    policy = load_policy(Path(__file__).resolve().parent.parent / "models" / "gnn_flood.npz", ROBOT)
+    nobody = np.zeros((0, policy.message_dim))
+    a, b, c = policy.fresh(), policy.fresh(), policy.fresh()
+    pose_a, pose_b, pose_c = np.array([0.0, 0.0, 0.0]), np.array([4.0, 0.0, np.pi]), np.array([1.0, 1.0, 0.5])
+    u_a, _ = a.act_one(pose_a, nobody)
+    u_b, message_b = b.act_one(pose_b, nobody)
+    assert np.all(u_a == 0.0) and np.all(u_b == 0.0)  # tick 0
+    u_a, message_a = a.act_one(pose_a, message_b[None])  # tick 1: heard B
+    np.testing.assert_allclose(message_a[-3:-1], [2.0, 0.0], atol=0.02)  # the target: the midpoint
+    assert message_a[-1] == 2.0  # the flag: has heard someone
+    u_a, message_a = a.act_one(pose_a, nobody)  # tick 2: heard nobody
+    assert u_a[0] > 0.9 * ROBOT.v_max_mps and abs(u_a[1]) < 0.05 * ROBOT.v_max_mps
+    np.testing.assert_allclose(message_a[-3:-1], [2.0, 0.0], atol=0.02)  # its memory is kept
+    for _ in range(3):
+        u_c, message_c = c.act_one(pose_c, nobody)
+        assert np.all(u_c == 0.0) and message_c[-1] == 1.0
+    a.reset()  # a restarted agent remembers nothing, not even that it heard someone
+    u_a, message_a = a.act_one(pose_a, nobody)
+    assert np.all(u_a == 0.0) and message_a[-1] == 1.0
+
+
+def test_heard_once_then_cut_off_batched_equals_per_robot(tmp_path):
+    """Robots 0 and 1 hear each other only at tick 1 (the link drops from tick 1 on, so only the
+    messages of tick 0 arrive); robot 2 has no link at all. In the batched kernel, as per robot,
+    0 and 1 keep moving toward their memory's target after tick 1, and 2 never moves."""
+    policy = _policy(tmp_path, _random_model(15))
+    count, ticks = 3, 30
+    poses = _poses(16, 2, count)
+    adjacency = np.zeros((count, count))
+    adjacency[0, 1] = adjacency[1, 0] = 1.0
+    faults = LinkFaults([{"kind": "drop_link", "at_s": DT, "link": [0, 1]}], DT, 0)
+    sim = KinematicSim(ROBOT, policy, DT, poses, adjacency=adjacency, link_faults=faults)
+    batched = sim.rollout(ticks)
+    assert sim.fault_counts["dropped_by_fault"] > 0
+    step = np.abs(np.diff(batched[:, :, :2, :2], axis=0)).max(axis=-1)  # (T, B, 2): per-tick motion
+    assert np.all(step[0] == 0.0)  # tick 0: nobody heard
+    assert np.all(step[1:] > 1e-4)  # heard once, at tick 1: moving in every tick after it
+    np.testing.assert_array_equal(batched[:, :, 2], batched[:1, :, 2].repeat(ticks + 1, axis=0))
+    one_by_one, messages = _per_robot_run(policy, poses, adjacency, ticks, heard_until=1)
+    np.testing.assert_allclose(one_by_one, batched, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(messages, sim.inbox, rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(messages[:, :, -1], np.broadcast_to([2.0, 2.0, 1.0], (2, count)))
 
 
 def test_flood_reaches_k_hops_in_k_ticks(tmp_path):
@@ -273,7 +330,7 @@ def test_training_replay_memory_equals_the_policy_memory(tmp_path):
     rebuilt = (positions.astype(np.float64) * signed).sum(-1)
     memory, inbox = None, np.zeros((*episode["poses"].shape[1:3], policy.memory_dim))
     for tick in range(30):
-        _, memory = policy.raw_step(episode["poses"][tick], memory, inbox, episode["heard"][tick])
+        _, memory, _ = policy.raw_step(episode["poses"][tick], memory, inbox, episode["heard"][tick])
         inbox = memory
         np.testing.assert_allclose(rebuilt[tick], memory, rtol=0, atol=1e-5)  # float32 positions
     assert episode["heard"][1:].any() and not episode["heard"][0].any()

@@ -26,8 +26,10 @@ width) from the least-squares centre of the midpoints, the temperature falling g
 0.2 w to the learned tau (continuation), unrolled, so training differentiates through it. With
 P = 12 directions the result is within 1% of the radius of the exact centre for most swarms.
 The robot then saturates ``u_local``
-(``swarm.features.saturate_local_velocity``) and rotates it to the world. A robot that heard nobody
-this tick holds still (as every controller of the project).
+(``swarm.features.saturate_local_velocity``) and rotates it to the world. A robot holds still until
+it has heard a neighbour once (tick 0 for everybody; a robot cut off from the start); from then on
+it steers toward its memory's target in every tick, heard or not (a tick without messages leaves
+the memory as it was, so the target is still the best it knows; as ``mec_flood``).
 
 Inductive biases built in (and what is learned):
 
@@ -196,13 +198,17 @@ class FloodGNN(nn.Module):
         memory: torch.Tensor | None,
         inbox: torch.Tensor,
         heard: torch.Tensor,
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """One tick for ``(B, N, 3)`` poses: raw robot-frame ``u_local`` (zero where nobody was heard)
-        and the new memory (= the message)."""
+        has_heard: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """One tick for ``(B, N, 3)`` poses: raw robot-frame ``u_local`` (zero where a robot has never
+        heard anybody, this tick included), the new memory (= the message) and the new ``has_heard``
+        ``(B, N)`` bool (``has_heard`` in: whether it heard someone at an earlier tick; None: nobody)."""
         memory = self.update(memory, poses[..., :2], inbox, heard)
         u_local = self.steer_local(poses, self.target(memory))
-        heard_any = heard.any(dim=-1)
-        return torch.where(heard_any[..., None], u_local, torch.zeros_like(u_local)), memory
+        moving = heard.any(dim=-1)
+        if has_heard is not None:
+            moving = moving | has_heard
+        return torch.where(moving[..., None], u_local, torch.zeros_like(u_local)), memory, moving
 
     def saturated(self, u_local: torch.Tensor, robot: RobotParams) -> torch.Tensor:
         return saturate(u_local, robot)
