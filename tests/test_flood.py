@@ -89,7 +89,9 @@ def test_numpy_equals_torch_before_saturation(tmp_path, activation):
     np.testing.assert_allclose(policy.steer_local(on_target, target[None, None]), raw_t.numpy(), atol=1e-9)
 
 
-def _per_robot_run(policy: FloodPolicy, poses: np.ndarray, adjacency: np.ndarray, ticks: int, heard_until=None):
+def _per_robot_run(
+    policy: FloodPolicy, poses: np.ndarray, adjacency: np.ndarray, ticks: int, heard_until=None
+):
     """Each robot its own FloodPolicy instance, fed the messages its neighbours sent last tick (the
     messages of ticks >= ``heard_until`` are never heard: a link dropped from then on)."""
     batch, count = poses.shape[:2]
@@ -334,3 +336,52 @@ def test_training_replay_memory_equals_the_policy_memory(tmp_path):
         inbox = memory
         np.testing.assert_allclose(rebuilt[tick], memory, rtol=0, atol=1e-5)  # float32 positions
     assert episode["heard"][1:].any() and not episode["heard"][0].any()
+
+
+def test_steering_stage_fits_the_steering_alone(tmp_path, capsys):
+    """``imitation: false`` + ``steering_steps`` from an ``init`` file: the flood and the target keep
+    the file's weights bit for bit, and the steering gets closer to the expert's steering law
+    (``swarm.experts.drive_toward_velocity``, the oracle) on rows it never saw. A missing init file
+    is bad input: one line, exit 2."""
+    import yaml
+
+    from swarm.cli import main
+    from swarm.experts import drive_toward_velocity
+    from swarm.features import saturate_local_velocity
+    from swarm.robot import world_to_local
+
+    init = _random_model(17).export(tmp_path / "init.npz", ROBOT)
+    options = {
+        "init": str(init),
+        "imitation": False,
+        "steering_steps": 150,
+        "steering_batch": 512,
+        "steering_lr": 3e-3,
+        "eval_cells": [["line", 6]],
+        "eval_starts": 2,
+        "eval_max_s": 5.0,
+    }
+    config = tmp_path / "steering.yaml"
+    config.write_text(yaml.safe_dump(options))
+    assert main(["train", "--algo", "flood", "--config", str(config), "--out", str(tmp_path / "run")]) == 0
+    before, after = load_policy(init), load_policy(tmp_path / "run" / "policy.npz")
+    for name in ("projections", "log_tau"):
+        np.testing.assert_array_equal(after._arrays[name], before._arrays[name])
+    rng = np.random.default_rng(18)
+    poses = np.concatenate([np.zeros((4000, 2)), rng.uniform(-np.pi, np.pi, (4000, 1))], axis=-1)
+    distance, bearing = np.exp(rng.uniform(np.log(0.01), np.log(5.0), 4000)), rng.uniform(-np.pi, np.pi, 4000)
+    targets = np.stack([distance * np.cos(bearing), distance * np.sin(bearing)], axis=-1)
+    expert = drive_toward_velocity(poses, targets, ROBOT.offset_m, ROBOT.v_max_mps, DT)
+    labels = saturate_local_velocity(world_to_local(expert, poses[:, 2]), ROBOT)
+
+    def error(policy: FloodPolicy) -> float:
+        out = saturate_local_velocity(policy.steer_local(poses, targets), ROBOT)
+        return float((((out - labels) / ROBOT.v_max_mps) ** 2).sum(-1).mean())
+
+    assert error(after) < 0.5 * error(before)
+    capsys.readouterr()
+    config.write_text(yaml.safe_dump({**options, "init": str(tmp_path / "missing.npz")}))
+    assert main(["train", "--algo", "flood", "--config", str(config), "--out", str(tmp_path / "bad")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "missing.npz: no such policy file" in err[0]
+    assert not (tmp_path / "bad").exists()  # nothing started

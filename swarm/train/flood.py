@@ -22,6 +22,13 @@ Reads top to bottom: hyperparameters, episodes (rollout + expert labels), the re
   the saturated output against the label, in units of v_max^2.
 - Every iteration's model is exported and checked in closed loop (median ratio to the lower bound
   over the ``eval_cells``); the best iterate is the result (``policy.npz``).
+- Steering stage (``steering_steps`` > 0): then only the steering MLP is fitted, by Adam with a
+  cosine-annealed rate, to the expert's own steering law on random (pose, target) pairs
+  (:func:`steering_rows`); the flood and the target are left as they are. The imitation rows teach
+  the steering through targets that are not the expert's (the flooded extent lags the current one),
+  which leaves it slower than the expert near its target and in sharp turns; the stage removes that.
+  With ``init`` (a ``gnn_flood`` policy file) and ``imitation: false`` it is a fine-tuning of that
+  file's steering alone.
 
 Seeded: numpy and torch generators from ``seed``, torch on ``threads`` threads (default 1). The same
 command on the same machine gives the same weights; another machine (another BLAS, CPU, thread count
@@ -97,6 +104,12 @@ class FloodConfig:
     eval_cells: tuple[tuple[str, int], ...] = (("line", 12), ("cycle", 12), ("random", 12), ("disk", 12))
     eval_starts: int = 32
     eval_max_s: float = 60.0
+    # start, imitation, steering stage
+    init: str | None = None  # a gnn_flood policy file to start from (its architecture is used)
+    imitation: bool = True  # behavioural cloning + DAgger (off: the steering stage only)
+    steering_steps: int = 0  # then: Adam steps of the steering MLP alone on the expert's steering law
+    steering_batch: int = 4096  # rows per step
+    steering_lr: float = 1e-3  # cosine-annealed to 0 over the steps
     progress: bool = False
 
 
@@ -107,16 +120,44 @@ def make_config(preset: str = "default", overrides: dict | None = None) -> Flood
     overrides = dict(overrides or {})
     if "eval_cells" in overrides:
         overrides["eval_cells"] = tuple(tuple(cell) for cell in overrides["eval_cells"])
-    return preset_with_overrides(
+    config = preset_with_overrides(
         "flood",
         PRESETS,
         preset,
         overrides,
         tuple_fields=("steer_hidden", "graphs", "sizes", "loss_p", "epochs"),
     )
+    if config.init is not None:
+        from swarm.policy import PolicyFormatError
+
+        if not Path(config.init).is_file():
+            raise ValueError(f"init: {config.init}: no such policy file")
+        try:
+            kind = load_policy(config.init).kind
+        except (PolicyFormatError, OSError, KeyError) as error:
+            raise ValueError(f"init: {config.init}: not a policy file ({error})") from None
+        if kind != FloodGNN.kind:
+            raise ValueError(f"init: {config.init}: a {kind!r} policy, expected {FloodGNN.kind!r}")
+    if not config.imitation and not config.steering_steps:
+        raise ValueError("imitation: false needs steering_steps > 0 (nothing would be trained)")
+    return config
+
+
+def from_policy_file(path: str | Path) -> FloodGNN:
+    """The torch model of a ``gnn_flood`` policy file, with its weights (float32, as stored)."""
+    from swarm.models.flood import build_flood
+
+    policy = load_policy(path)
+    model = build_flood({"model": policy.model, "output_scale_mps": policy.output_scale_mps})
+    model.load_state_dict(
+        {name: torch.as_tensor(np.asarray(value)) for name, value in policy._arrays.items()}
+    )
+    return model
 
 
 def build(config: FloodConfig) -> FloodGNN:
+    if config.init is not None:
+        return from_policy_file(config.init)
     return FloodGNN(
         config.directions,
         config.steer_hidden,
@@ -329,6 +370,25 @@ def fit_epoch(
     return total / len(order)
 
 
+def fit_steering(model: FloodGNN, robot: RobotParams, config: FloodConfig, rng: np.random.Generator) -> float:
+    """The steering stage: ``steering_steps`` Adam steps of the steering MLP alone on fresh rows of
+    the expert's steering law (:func:`steering_rows`); returns the last step's loss (v_max^2 units)."""
+    optimizer = torch.optim.Adam(model.steer.parameters(), lr=config.steering_lr)
+    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, config.steering_steps)
+    loss = torch.zeros(())
+    for step in range(config.steering_steps):
+        poses, targets, labels = steering_rows(config.steering_batch, robot, config, rng)
+        error = (saturate(model.steer_local(poses, targets), robot) - labels) / robot.v_max_mps
+        loss = (error * error).sum(-1).mean()
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        schedule.step()
+        if config.progress and step % 500 == 0:
+            log.info("steering step %d loss %.5f", step, float(loss.detach()))
+    return float(loss.detach())
+
+
 # -- closed-loop check ---------------------------------------------------------------------------
 
 
@@ -363,13 +423,55 @@ def train(config: FloodConfig) -> Path:
     torch.manual_seed(config.seed)
     torch.set_num_threads(config.threads)
     rng = np.random.default_rng(config.seed)
-    generator = torch.Generator().manual_seed(config.seed)
     robot = RobotParams(v_max_mps=config.v_max_mps)
+    rows: list[dict] = []
+    started = time.perf_counter()
+    chosen = imitate(config, robot, rng, rows, started) if config.imitation else build(config)
+    if config.steering_steps:
+        loss = fit_steering(chosen, robot, config, rng)
+        policy_path = chosen.export(out / "steering" / "policy.npz", robot)
+        rows.append(
+            {
+                "iteration": "steering",
+                "loss": loss,
+                **check_row(policy_path, config),
+                "elapsed_s": round(time.perf_counter() - started, 1),
+            }
+        )
+        write_log(out, rows, config)
+    training = {"algo": "flood", "config": asdict(config), "log": rows}
+    if config.imitation:
+        training["best_iteration"] = min(
+            (row for row in rows if row["iteration"] != "steering"),
+            key=lambda row: row["closed_loop_mean_ratio"],
+        )["iteration"]
+    return chosen.export(out / "policy.npz", robot, training)
+
+
+def check_row(policy_path: Path, config: FloodConfig) -> dict:
+    check = closed_loop(policy_path, config)
+    return {"closed_loop_mean_ratio": float(np.mean(list(check.values()))), **check}
+
+
+def write_log(out: Path, rows: list[dict], config: FloodConfig) -> None:
+    if config.progress:
+        log.info("%s", json.dumps(rows[-1]))
+    fields = list(dict.fromkeys(key for row in rows for key in row))
+    with open(out / "log.csv", "w", newline="") as file:
+        writer = csv.DictWriter(file, fieldnames=fields)
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def imitate(
+    config: FloodConfig, robot: RobotParams, rng: np.random.Generator, rows: list[dict], started: float
+) -> FloodGNN:
+    """Behavioural cloning, then DAgger (module docstring); the best iterate, by the closed-loop check."""
+    out = Path(config.out)
+    generator = torch.Generator().manual_seed(config.seed)
     model = build(config)
     episodes: list[dict] = []
-    rows: list[dict] = []
     best: tuple[float, int] = (np.inf, 0)
-    started = time.perf_counter()
     for iteration in range(config.iterations + 1):
         share = 1.0 if iteration == 0 else config.beta0 * config.beta_decay ** (iteration - 1)
         learner_path = out / f"iter_{iteration}" / "learner.npz"
@@ -392,27 +494,20 @@ def train(config: FloodConfig) -> Path:
             out / f"iter_{iteration}" / "checkpoint.pt",
         )
         model.export(policy_path, robot, {"algo": "flood", "iteration": iteration, "config": asdict(config)})
-        check = closed_loop(policy_path, config)
-        score = float(np.mean(list(check.values())))
-        row = {
-            "iteration": iteration,
-            "expert_share": share,
-            "episodes": len(episodes),
-            "loss": loss,
-            "closed_loop_mean_ratio": score,
-            **check,
-            "elapsed_s": round(time.perf_counter() - started, 1),
-        }
-        rows.append(row)
-        if config.progress:
-            log.info("%s", json.dumps(row))
-        with open(out / "log.csv", "w", newline="") as file:
-            writer = csv.DictWriter(file, fieldnames=list(rows[0]))
-            writer.writeheader()
-            writer.writerows(rows)
-        if score < best[0]:
-            best = (score, iteration)
+        check = check_row(policy_path, config)
+        rows.append(
+            {
+                "iteration": iteration,
+                "expert_share": share,
+                "episodes": len(episodes),
+                "loss": loss,
+                **check,
+                "elapsed_s": round(time.perf_counter() - started, 1),
+            }
+        )
+        write_log(out, rows, config)
+        if check["closed_loop_mean_ratio"] < best[0]:
+            best = (check["closed_loop_mean_ratio"], iteration)
     chosen = build(config)
     chosen.load_state_dict(torch.load(out / f"iter_{best[1]}" / "checkpoint.pt", weights_only=False)["model"])
-    training = {"algo": "flood", "best_iteration": best[1], "config": asdict(config), "log": rows}
-    return chosen.export(out / "policy.npz", robot, training)
+    return chosen
