@@ -14,6 +14,8 @@ max_pairwise at the end of each run against the packing limit of N bumpers of ra
 A run that does not pack below its threshold exits 1: that is a result, not an error.
 
     nice -n 10 python bench/bench_compact.py --out docs/results/compact
+    nice -n 10 python bench/bench_compact.py --out docs/results/compact --keep \
+        --scenarios scenarios/compact/*-gnn.yaml          # re-run the GNN's rows only (a new model)
 """
 
 from __future__ import annotations
@@ -110,6 +112,11 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", default="runs/compact")
     parser.add_argument("--scenarios", nargs="*", help="default: every scenarios/compact/*.yaml")
+    parser.add_argument(
+        "--keep",
+        action="store_true",
+        help="keep the other scenarios' rows of --out/compact.json (re-run these)",
+    )
     args = parser.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -121,6 +128,11 @@ def main(argv: list[str] | None = None) -> int:
         else sorted((ROOT / "scenarios/compact").glob("*.yaml"))
     )
     rows, limits = [], {}
+    if args.keep and (out / "compact.json").is_file():
+        kept = json.loads((out / "compact.json").read_text())
+        rerun = {path.stem for path in paths}
+        rows = [row for row in kept["rows"] if row["scenario"] not in rerun]
+        limits = {int(count): limit for count, limit in kept["packing_limits"].items()}
     for path in paths:
         scenario = load_scenario(path)
         count, radius = scenario.robots.count, scenario.robot.body_radius_m
@@ -129,7 +141,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"running {path.name}", file=sys.stderr, flush=True)
         row = run_one(path, out / "runs" / path.stem)
         row["topology"] = scenario.topology.kind
-        rows.append(row)
+        rows = sorted([*rows, row], key=lambda kept: kept["scenario"])
         write(out, rows, limits)
     return 0
 

@@ -466,7 +466,7 @@ class FloodPolicy:
         if heard.any():
             masked = np.where(heard[..., None], inbox[:, None, :, :], -np.inf)
             values = np.maximum(values, masked.max(axis=2))
-        moving = heard.any(axis=-1)
+        moving = np.asarray(heard.any(axis=-1))
         if has_heard is not None:
             moving = moving | has_heard
         u_local = self.steer_local(poses, self.target(values))

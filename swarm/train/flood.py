@@ -56,7 +56,7 @@ from swarm.features import saturate_local_velocity
 from swarm.initial_poses import box_for, random_poses
 from swarm.kinematic import KinematicSim
 from swarm.models.flood import FloodGNN
-from swarm.policy import load_policy
+from swarm.policy import FloodPolicy, load_policy
 from swarm.robot import RobotParams, world_to_local
 from swarm.train import preset_with_overrides
 
@@ -148,6 +148,8 @@ def from_policy_file(path: str | Path) -> FloodGNN:
     from swarm.models.flood import build_flood
 
     policy = load_policy(path)
+    if not isinstance(policy, FloodPolicy):
+        raise ValueError(f"{path}: a {policy.kind!r} policy, expected {FloodGNN.kind!r}")
     model = build_flood({"model": policy.model, "output_scale_mps": policy.output_scale_mps})
     model.load_state_dict(
         {name: torch.as_tensor(np.asarray(value)) for name, value in policy._arrays.items()}
