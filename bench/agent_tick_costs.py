@@ -3,7 +3,7 @@
 Each piece is timed on its own in this process (``timeit``, the best of ``--repeats`` rounds: the
 figure least disturbed by other load), with the payloads a real run carries (local consensus, message
 dimension 2, ``--neighbours`` neighbours, no link faults). The real agent's pieces call the functions
-``robot_agent`` calls (``swarm.wire``, ``swarm.faults.select_message``, ``swarm.onboard``); the
+``robot_agent`` calls (``swarm.runtime.wire``, ``swarm.core.faults.select_message``, ``swarm.sim.onboard``); the
 per-neighbour bookkeeping of ``RobotAgent._drain_messages`` and ``_loop`` is timed through a real
 ``RobotAgent`` where it is a method, and as the same statements where it is inline. Zenoh's own
 work (``recv``, ``put``, its threads) is the floor both agents share and is not timed here
@@ -29,10 +29,10 @@ import zenoh
 from _output import add_output_arguments, output_dir
 
 from robot_agent.agent import AgentOptions, RobotAgent
-from swarm import wire
-from swarm.faults import select_message
-from swarm.onboard import OnboardLocalConsensus, wheels_one
-from swarm.robot import RobotParams
+from swarm.core.faults import select_message
+from swarm.core.robot import RobotParams
+from swarm.runtime import wire
+from swarm.sim.onboard import OnboardLocalConsensus, wheels_one
 
 
 class _Channel:
@@ -49,7 +49,7 @@ class _Channel:
         return self.samples.pop() if self.samples else None
 
 
-_MESSAGE_HEAD = b"\x83\xa1v\x01\xa1k"  # msgpack {"v": 1, "k": ... as swarm.wire packs a message
+_MESSAGE_HEAD = b"\x83\xa1v\x01\xa1k"  # msgpack {"v": 1, "k": ... as swarm.runtime.wire packs a message
 _MESSAGE_BODY = b"\xa1m\xc4\x10"  # "m": bin 8 of 16 bytes (two float64)
 _UINTS = {0xCC: 1, 0xCD: 2, 0xCE: 4, 0xCF: 8}
 

@@ -1,6 +1,6 @@
 """The baseline tables: every controller as ratio to the lower bound, on the sweep's starts.
 
-Runs (or reads from the cell caches) the cells of ``swarm.sweep`` for ``mec_flood`` (reverse on and
+Runs (or reads from the cell caches) the cells of ``swarm.scenarios.sweep`` for ``mec_flood`` (reverse on and
 off), ``centralized_mec``, the thesis's ``centralized`` expert and ``local_consensus`` on complete,
 cycle, line, star, random and disk graphs at N = 6, 12, 24, 50, 100 (1000 starts each); under 20 %
 and 50 % packet loss on cycles and lines at N = 24 and 100; and on the line whose indices follow
@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from swarm.sweep import SweepConfig, cached_cell, find_cached_cell, summarize_cell
+from swarm.scenarios.sweep import SweepConfig, cached_cell, find_cached_cell, summarize_cell
 
 BASELINES = ("mec_flood", "mec_flood_forward", "centralized_mec", "centralized", "local_consensus")
 LABELS = {
@@ -138,7 +138,7 @@ def write_tables(out: Path, rows: list[dict], args) -> None:
     header = "| graph | N | loss | " + " | ".join(LABELS[c] for c in controllers) + " |"
     lines = [
         "Convergence time over the lower bound `max(0, R_mec - threshold/sqrt 3) / v_max`, median / p95",
-        f"over {args.seeds} random starts per cell (`swarm.sweep.cell_starts`, seed 0), kinematic engine,",
+        f"over {args.seeds} random starts per cell (`swarm.scenarios.sweep.cell_starts`, seed 0), kinematic engine,",
         "threshold 0.2 m held 5 s, v_max 0.5 m/s, control period 0.05 s. Every cell converged on 100 %",
         "of its starts unless marked `(x % ok)`; `[n]`: only the first n starts were run.",
         "Loss: probability that a message is lost (`packet_loss` on every link; lockstep timing: a lost",

@@ -120,7 +120,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    from swarm.scenario import load_scenario
+    from swarm.scenarios.scenario import load_scenario
 
     paths = (
         [Path(p) for p in args.scenarios]

@@ -1,4 +1,4 @@
-"""Expert-data generation speed: ``swarm collect`` (swarm.data) samples per wall-clock second.
+"""Expert-data generation speed: ``swarm collect`` (swarm.learn.data) samples per wall-clock second.
 
 The default recipe (centralized expert, six graph kinds x six sizes N = 4..12, every robot random,
 K = 8 hop features with the policy's message timing). Target: 10^6 samples in at most 10 s.
@@ -20,7 +20,7 @@ from dataclasses import asdict
 import numpy as np
 from _output import add_output_arguments, output_dir, progress
 
-from swarm.data import collect, collect_config
+from swarm.learn.data import collect, collect_config
 
 TARGET_S = 10.0
 

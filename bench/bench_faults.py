@@ -45,11 +45,11 @@ from pathlib import Path
 import numpy as np
 from _output import add_output_arguments, output_dir, progress
 
-from swarm import graphs
-from swarm.initial_poses import box_for
-from swarm.metrics import convergence_time, max_pairwise
-from swarm.results import read_trajectory
-from swarm.scenario import parse_scenario
+from swarm.core import graphs
+from swarm.core.initial_poses import box_for
+from swarm.core.metrics import convergence_time, max_pairwise
+from swarm.scenarios.results import read_trajectory
+from swarm.scenarios.scenario import parse_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = Path(__file__).resolve().parent / "results"

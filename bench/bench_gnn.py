@@ -1,5 +1,5 @@
 """GNN throughput inside the kinematic engine: robot-steps per second of the max-flooding GNN
-(``gnn_flood``, compiled batched forward ``swarm.flood_kernel``) at (B = 64, N = 100) and
+(``gnn_flood``, compiled batched forward ``swarm.sim.flood_kernel``) at (B = 64, N = 100) and
 (B = 1024, N = 6), on cycle and random graphs. Target: 1e7 robot-steps/s on 2 cores.
 
 For every shape, in this one invocation (the cores are shared with other jobs: the figures that
@@ -40,11 +40,12 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from swarm import flood_kernel, flood_readout, graphs, kernels
-from swarm.initial_poses import box_for, random_poses
-from swarm.kinematic import KinematicSim
-from swarm.policy import FloodPolicy, load_policy
-from swarm.sweep import SweepConfig, cell_path, random_edge_probability, run_cell
+from swarm.core import graphs
+from swarm.core.initial_poses import box_for, random_poses
+from swarm.scenarios.sweep import SweepConfig, cell_path, random_edge_probability, run_cell
+from swarm.sim import flood_kernel, flood_readout, kernels
+from swarm.sim.kinematic import KinematicSim
+from swarm.sim.policy import FloodPolicy, load_policy
 
 SHAPES = [(64, 100), (1024, 6)]
 TARGET_ROBOT_STEPS_PER_S = 1e7
@@ -100,7 +101,7 @@ def _flop_limit(poses, inbox, neighbour_index, multiply_adds, lanes, u_world, ou
     """The forward's memory traffic (pose, own message, heard messages in; message and velocity out)
     around ``multiply_adds`` multiply-adds per robot in ``LIMIT_CHAINS`` independent chains, the loop
     over a block of robots innermost (vectorized: AVX-512 here, no fastmath), the form the steering
-    MLP takes in ``swarm.flood_kernel``: what numba sustains on this CPU for that work."""
+    MLP takes in ``swarm.sim.flood_kernel``: what numba sustains on this CPU for that work."""
     batch, count = poses.shape[0], poses.shape[1]
     dim, slots, rows = outbox.shape[2], neighbour_index.shape[2], batch * count
     seed = np.empty(lanes)

@@ -19,7 +19,7 @@ import time
 import numpy as np
 from _output import add_output_arguments, output_dir, progress
 
-from swarm.policy import load_policy
+from swarm.sim.policy import load_policy
 
 TARGET_US = 50.0
 

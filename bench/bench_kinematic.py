@@ -1,6 +1,6 @@
 """Kinematic simulator throughput: robot-steps per second (robots x environments x ticks / wall s).
 
-Local consensus (the delayed-information law of swarm.controllers) on fixed cycle and random
+Local consensus (the delayed-information law of swarm.sim.controllers) on fixed cycle and random
 graphs and on disk graphs recomputed every tick, for the batch shapes the learning code uses:
 (B=1, N=1000), (B=1024, N=6) and (B=64, N=100). Target: at least 2e7 robot-steps/s for
 the two batched shapes. Writes bench/results/kinematic.json.
@@ -19,12 +19,12 @@ import time
 import numpy as np
 from _output import add_output_arguments, output_dir, progress
 
-from swarm import graphs
-from swarm.controllers import LocalConsensus
-from swarm.initial_poses import box_for, random_poses
-from swarm.kinematic import KinematicSim
-from swarm.robot import RobotParams
-from swarm.sweep import connecting_radius, random_edge_probability
+from swarm.core import graphs
+from swarm.core.initial_poses import box_for, random_poses
+from swarm.core.robot import RobotParams
+from swarm.scenarios.sweep import connecting_radius, random_edge_probability
+from swarm.sim.controllers import LocalConsensus
+from swarm.sim.kinematic import KinematicSim
 
 SHAPES = [(1, 1000), (1024, 6), (64, 100)]
 TARGET_ROBOT_STEPS_PER_S = 2e7

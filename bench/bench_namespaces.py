@@ -1,6 +1,6 @@
 """The distributed runtime across emulated hosts: the sim server in one network namespace, the agents
 in four more (N / 4 each, one ``robot-agent --robots`` launcher per namespace), all joined by a bridge
-(``swarm.netns.Hosts``), optionally with a netem delay on each agent namespace's link.
+(``swarm.runtime.netns.Hosts``), optionally with a netem delay on each agent namespace's link.
 
 Each run is the runtime benchmark's scenario (``bench/bench_runtime.py``: N robots, random graph of
 mean degree ~4, local consensus, 20 Hz, physics 40 Hz / 30 iterations), started by hand as a user on
@@ -33,9 +33,9 @@ from _output import add_output_arguments, output_dir, progress
 from bench_runtime import scenario_data
 
 from sim_server.physics import LARGE_SWARM_PHYSICS_HZ, LARGE_SWARM_SOLVER_ITERATIONS
-from swarm.netns import Hosts, NamespaceError, Processes, why_no_namespaces
-from swarm.results import read_trajectory, summarize
-from swarm.scenario import load_scenario
+from swarm.runtime.netns import Hosts, NamespaceError, Processes, why_no_namespaces
+from swarm.scenarios.results import read_trajectory, summarize
+from swarm.scenarios.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parent.parent
 PORT = 7447

@@ -26,7 +26,7 @@ import numpy as np
 from _output import add_output_arguments, output_dir, progress
 
 from sim_server.physics import PhysicsWorld
-from swarm.robot import RobotParams
+from swarm.core.robot import RobotParams
 
 RESULTS = Path(__file__).resolve().parent / "results" / "physics.json"
 

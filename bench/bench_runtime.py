@@ -1,7 +1,7 @@
 """Benchmark of the distributed runtime (``swarm run`` with ``engine: pybullet``): real processes, real Zenoh.
 
 For every swarm size N and timing mode it writes a scenario (N robots at random in a box that grows
-with N, ``swarm.initial_poses.box_for``; a connected random graph of mean degree about 4; local
+with N, ``swarm.core.initial_poses.box_for``; a connected random graph of mean degree about 4; local
 consensus; 20 Hz control), runs it with ``python -m swarm.cli run`` exactly as a user would, and
 reads what the processes report:
 
@@ -55,9 +55,9 @@ import zenoh
 from _output import add_output_arguments, output_dir, progress
 
 from sim_server.physics import LARGE_SWARM_PHYSICS_HZ, LARGE_SWARM_SOLVER_ITERATIONS
-from swarm import wire
-from swarm.distributed import AGENT_NICE
-from swarm.initial_poses import box_for
+from swarm.core.initial_poses import box_for
+from swarm.runtime import wire
+from swarm.runtime.distributed import AGENT_NICE
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = Path(__file__).resolve().parent / "results"

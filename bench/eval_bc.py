@@ -20,9 +20,9 @@ import time
 import numpy as np
 from _output import add_output_arguments, output_dir
 
-from swarm.features import FeatureSpec
-from swarm.policy import FeatureController, load_policy
-from swarm.train.evaluate import compare, format_rows, local_consensus
+from swarm.learn.train.evaluate import compare, format_rows, local_consensus
+from swarm.sim.features import FeatureSpec
+from swarm.sim.policy import FeatureController, load_policy
 
 
 class UniformFilter(FeatureController):

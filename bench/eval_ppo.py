@@ -26,12 +26,12 @@ from pathlib import Path
 import numpy as np
 from _output import add_output_arguments, output_dir, progress
 
-from swarm import metrics
-from swarm.controllers import Centralized, LocalConsensus
-from swarm.kinematic import KinematicSim
-from swarm.policy import load_policy
-from swarm.robot import RobotParams
-from swarm.sweep import cell_starts, converge_batch
+from swarm.core import metrics
+from swarm.core.robot import RobotParams
+from swarm.scenarios.sweep import cell_starts, converge_batch
+from swarm.sim.controllers import Centralized, LocalConsensus
+from swarm.sim.kinematic import KinematicSim
+from swarm.sim.policy import load_policy
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from tune_consensus_gain import DEFAULT_GAINS, OUT_DIR, sweep_config, tune

@@ -1,13 +1,13 @@
 """Where the learned flooding GNN loses time at N = 6: its target or its learned steering.
 
-Four controllers on the same starts (``swarm.sweep.cell_starts``, the first ``--starts`` of each
+Four controllers on the same starts (``swarm.scenarios.sweep.cell_starts``, the first ``--starts`` of each
 cell), every combination of
 
 - target: the GNN's own (its flooded memory's smoothed minimax centre, what its message carries)
   or the oracle (the exact minimum enclosing circle's centre of the current axle positions, as the
   expert ``centralized_mec``),
 - steering: the GNN's learned MLP (``FloodPolicy.steer_local`` + the robot's saturation) or the
-  exact law of ``mec_flood`` / ``centralized_mec`` (``swarm.experts.drive_toward_velocity``:
+  exact law of ``mec_flood`` / ``centralized_mec`` (``swarm.core.experts.drive_toward_velocity``:
   full speed toward the target, reversing when it is behind the axle),
 
 plus ``mec_flood`` itself. GNN target + learned steering is the shipped model; oracle + exact law
@@ -26,13 +26,13 @@ from pathlib import Path
 
 import numpy as np
 
-from swarm import metrics
-from swarm.experts import drive_toward_velocity
-from swarm.features import saturate_local_velocity
-from swarm.kinematic import KinematicSim
-from swarm.policy import load_policy
-from swarm.robot import RobotParams, rotate
-from swarm.sweep import SweepConfig, cell_starts, converge_batch, make_controller
+from swarm.core import metrics
+from swarm.core.experts import drive_toward_velocity
+from swarm.core.robot import RobotParams, rotate
+from swarm.scenarios.sweep import SweepConfig, cell_starts, converge_batch, make_controller
+from swarm.sim.features import saturate_local_velocity
+from swarm.sim.kinematic import KinematicSim
+from swarm.sim.policy import load_policy
 
 GRAPHS = ("complete", "cycle", "line", "star", "random", "disk")
 
@@ -92,7 +92,7 @@ def main(argv: list[str] | None = None) -> int:
     header = "| graph | N | " + " | ".join(name for name, _, _ in forms) + " | mec_flood |"
     lines = [
         f"Median / p95 ratio to the lower bound over the first {args.starts} starts of each sweep cell "
-        f"(`swarm.sweep.cell_starts`, seed 0), model `{args.model}`, kinematic engine.",
+        f"(`swarm.scenarios.sweep.cell_starts`, seed 0), model `{args.model}`, kinematic engine.",
         "Command: `python bench/flood_n6_limit.py` (its docstring: what each column is).",
         "",
         header,

@@ -42,7 +42,7 @@ def read_cells(directories: list[str], controller: str, model: str | None = None
 
     import numpy as np
 
-    from swarm.sweep import file_hash
+    from swarm.scenarios.sweep import file_hash
 
     tag = None if model is None else f"-{file_hash(model)[:12]}"
     rows = {}

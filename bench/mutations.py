@@ -42,8 +42,8 @@ class Mutation:
 MUTATIONS = [
     Mutation(
         "wire-checks-removed",
-        "swarm/wire.py without its NaN, magnitude and message-length checks",
-        "swarm/wire.py",
+        "swarm/runtime/wire.py without its NaN, magnitude and message-length checks",
+        "swarm/runtime/wire.py",
         """    value = float(value)
     if not math.isfinite(value) or abs(value) > bound:
         return None
@@ -55,7 +55,7 @@ MUTATIONS = [
     Mutation(
         "message-length-check-removed",
         "a message of another length than the controller's is accepted",
-        "swarm/wire.py",
+        "swarm/runtime/wire.py",
         """    if dim is not None and size != dim:
         return None
 """,
@@ -77,7 +77,7 @@ MUTATIONS = [
     Mutation(
         "numpy-gain-1.5x",
         "the numpy policy's output 1.5x too large (the torch model unchanged)",
-        "swarm/policy.py",
+        "swarm/sim/policy.py",
         """        return self.output_scale_mps * self._network(features_local / self.feature_scale_m)""",
         "        return 1.5 * self.output_scale_mps * self._network(features_local / self.feature_scale_m)",
         ("tests/test_policy.py::test_numpy_forward_equals_torch",),
@@ -85,7 +85,7 @@ MUTATIONS = [
     Mutation(
         "numpy-gnn-gain-1.5x",
         "the numpy graph filter's gain 1.5x too large",
-        "swarm/policy.py",
+        "swarm/sim/policy.py",
         """        return gain[..., None] * (weights[..., None] * f).sum(-2)""",
         """        return 1.5 * gain[..., None] * (weights[..., None] * f).sum(-2)""",
         ("tests/test_policy.py::test_numpy_forward_equals_torch",),
@@ -93,7 +93,7 @@ MUTATIONS = [
     Mutation(
         "lower-bound-zero",
         "the lower bound is always zero",
-        "swarm/metrics.py",
+        "swarm/core/metrics.py",
         """    return max(0.0, radius_m - threshold_m / math.sqrt(3.0)) / v_max_mps""",
         """    return 0.0 * max(0.0, radius_m - threshold_m / math.sqrt(3.0)) / v_max_mps""",
         ("tests/test_sweep.py::test_no_start_beats_the_lower_bound",),  # the sweep alone, not the unit test
@@ -101,7 +101,7 @@ MUTATIONS = [
     Mutation(
         "lower-bound-halved",
         "the lower bound is half what it should be",
-        "swarm/metrics.py",
+        "swarm/core/metrics.py",
         """    return max(0.0, radius_m - threshold_m / math.sqrt(3.0)) / v_max_mps""",
         """    return 0.5 * max(0.0, radius_m - threshold_m / math.sqrt(3.0)) / v_max_mps""",
         ("tests/test_sweep.py::test_no_start_beats_the_lower_bound",),
@@ -109,7 +109,7 @@ MUTATIONS = [
     Mutation(
         "sweep-cache-ignored",
         "a sweep recomputes every cell instead of reading its cache",
-        "swarm/sweep.py",
+        "swarm/scenarios/sweep.py",
         """    cell = find_cached_cell(out_dir, config, topology, count, controller, reuse)
     if cell is not None:
         return cell""",
@@ -118,8 +118,8 @@ MUTATIONS = [
     ),
     Mutation(
         "no-tick-window",
-        "agents believe any tick (the window of swarm/ticks.py removed)",
-        "swarm/ticks.py",
+        "agents believe any tick (the window of swarm/runtime/ticks.py removed)",
+        "swarm/runtime/ticks.py",
         """        if self.tick < 0:
             return 0  # before the first pose: only tick 0 is believed without confirmation
         return tick_limit(self.tick, now_s - self.at_s, self.step_s)""",
@@ -152,7 +152,7 @@ MUTATIONS = [
     Mutation(
         "model-not-checked-before-start",
         "the pybullet engine starts its processes without reading the model file first",
-        "swarm/distributed.py",
+        "swarm/runtime/distributed.py",
         """        try:  # before any process starts: a bad file is bad input, not agents that exit with 1
             load_policy(model, scenario.robot, scenario.robots.count)
         except PolicyFormatError as error:

@@ -1,6 +1,6 @@
 """The PPO-tuned GNN in the PyBullet + Zenoh runtime against tuned local consensus and the BC model.
 
-For each start seed, writes a scenario (N robots on a cycle, uniform in ``swarm.initial_poses.box_for(N)``
+For each start seed, writes a scenario (N robots on a cycle, uniform in ``swarm.core.initial_poses.box_for(N)``
 0.4 m apart, v_max 0.5 m/s, lockstep, 20 Hz) per controller and runs it with
 ``python -m swarm.cli run`` exactly as a user would (one sim_server process and N robot_agent
 processes over Zenoh), on the PyBullet engine and, for reference, on the kinematic engine. Reads
@@ -30,9 +30,9 @@ import numpy as np
 import yaml
 from _output import add_output_arguments, output_dir, progress
 
-from swarm import metrics
-from swarm.initial_poses import box_for
-from swarm.results import read_trajectory
+from swarm.core import metrics
+from swarm.core.initial_poses import box_for
+from swarm.scenarios.results import read_trajectory
 
 ROOT = Path(__file__).resolve().parent.parent
 OUT_DIR = ROOT / "docs" / "results" / "rl" / "ppo"

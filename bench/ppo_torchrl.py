@@ -1,17 +1,17 @@
 """PPO side by side: TorchRL's multi-agent PPO (MAPPO) against the hand-written loop of ``swarm train
 --algo ppo``, on the same environment, policy, critic, hyperparameters and budget.
 
-``train``: TorchRL trains the task of ``swarm.train.ppo`` through ``swarm.rl.torchrl_env`` (the same
+``train``: TorchRL trains the task of ``swarm.learn.train.ppo`` through ``swarm.rl.torchrl_env`` (the same
 batched torch swarm, episodes, GNN features and shaped team reward), with TorchRL's parts only:
 ``Collector`` (64 swarms x 64 ticks per batch), ``GAE`` (gamma, lambda of the config; bootstraps
 truncated episodes, which the hand-written loop counts as done), ``ClipPPOLoss`` (per-robot ratio,
 padding slots masked through ``loss_mask_key``, advantage normalized per minibatch), a replay buffer
 sampling minibatches without replacement. MAPPO: decentralized actor, centralized critic, one set of
 parameters shared by all robots. Policy: the GNN of ``models/gnn_graph_filter.npz`` as the mean of
-TorchRL's ``IndependentNormal`` with the learned state-free std (``swarm.train.ppo.Actor``);
-critic: ``swarm.train.ppo.Critic``, its swarm value given to every robot. Adam with the loop's two
+TorchRL's ``IndependentNormal`` with the learned state-free std (``swarm.learn.train.ppo.Actor``);
+critic: ``swarm.learn.train.ppo.Critic``, its swarm value given to every robot. Adam with the loop's two
 learning rates and linear schedule, per-network gradient clipping, the critic-only warm-up updates.
-Writes ``log.csv``, ``eval.csv`` (the loop's deterministic evaluation, ``swarm.train.ppo.evaluate``),
+Writes ``log.csv``, ``eval.csv`` (the loop's deterministic evaluation, ``swarm.learn.train.ppo.evaluate``),
 ``config.json`` and ``policy.npz`` (the last iterate, the loop's exporter) into ``--out``.
 
 ``compare``: both runs' ``policy.npz`` (and the BC model they started from, and local consensus with
@@ -135,7 +135,7 @@ def team_to_agents(data) -> None:
 
 
 def load_config(path: str | None, overrides: dict):
-    from swarm.train import ppo
+    from swarm.learn.train import ppo
 
     data = yaml.safe_load(Path(path).read_text()) or {} if path else {}
     data.update(overrides)
@@ -150,9 +150,9 @@ def train(args: argparse.Namespace) -> Path:
     from torchrl.envs.utils import ExplorationType, set_exploration_type
     from tqdm import tqdm
 
+    from swarm.core.robot import RobotParams
+    from swarm.learn.train import ppo
     from swarm.rl.torchrl_env import SwarmTorchRLEnv
-    from swarm.robot import RobotParams
-    from swarm.train import ppo
 
     overrides = {"out": args.out, "progress": False, "tensorboard": False}
     if args.seed is not None:
@@ -342,12 +342,12 @@ def evaluate_policies(
     from tune_consensus_gain import OUT_DIR as TUNED_DIR
     from tune_consensus_gain import sweep_config
 
-    from swarm import metrics
-    from swarm.controllers import LocalConsensus
-    from swarm.kinematic import KinematicSim
-    from swarm.policy import load_policy
-    from swarm.robot import RobotParams
-    from swarm.sweep import cell_starts, converge_batch
+    from swarm.core import metrics
+    from swarm.core.robot import RobotParams
+    from swarm.scenarios.sweep import cell_starts, converge_batch
+    from swarm.sim.controllers import LocalConsensus
+    from swarm.sim.kinematic import KinematicSim
+    from swarm.sim.policy import load_policy
 
     robot = RobotParams(v_max_mps=0.5)
     config = sweep_config(starts, 0.2, 0.5, 0.05)

@@ -56,8 +56,8 @@ from bench_runtime import (
 )
 
 from sim_server.physics import LARGE_SWARM_PHYSICS_HZ, LARGE_SWARM_SOLVER_ITERATIONS
-from swarm.distributed import AGENT_NICE, AGENTS_EXIT_GRACE_S, _child_env
-from swarm.procs import free_tcp_port
+from swarm.runtime.distributed import AGENT_NICE, AGENTS_EXIT_GRACE_S, _child_env
+from swarm.runtime.procs import free_tcp_port
 
 BARE_AGENT = Path(__file__).resolve().parent / "bare_agent.py"
 ROLES = {"bare": "stand-in", "answer": "answer"}

@@ -2,7 +2,7 @@
 
 For each graph kind at N robots, local consensus ``u_i = -K sum_j (p_i(k) - p_j(k-1))`` runs with
 every K of a log grid (default 0.25 .. 64 1/s, factor sqrt 2) from the same random starts as
-``swarm sweep`` (``swarm.sweep.cell_starts``: seed 0, the box growing with N, 0.4 m apart; random
+``swarm sweep`` (``swarm.scenarios.sweep.cell_starts``: seed 0, the box growing with N, 0.4 m apart; random
 graphs Erdos-Renyi with p = 1.5 ln N / N, redrawn until connected), kinematic engine, v_max 0.5 m/s,
 control period 0.05 s, convergence = max_pairwise <= 0.2 m held for 5 s. The tuned K is the one
 with the smallest median convergence time among those that converged from every start (ties: the
@@ -24,11 +24,11 @@ from pathlib import Path
 import numpy as np
 from _output import add_output_arguments, output_dir
 
-from swarm import metrics
-from swarm.controllers import LocalConsensus
-from swarm.kinematic import KinematicSim
-from swarm.robot import RobotParams
-from swarm.sweep import SweepConfig, cell_starts, converge_batch
+from swarm.core import metrics
+from swarm.core.robot import RobotParams
+from swarm.scenarios.sweep import SweepConfig, cell_starts, converge_batch
+from swarm.sim.controllers import LocalConsensus
+from swarm.sim.kinematic import KinematicSim
 
 OUT_DIR = Path(__file__).resolve().parent.parent / "docs" / "results" / "rl" / "ppo"
 DEFAULT_GAINS = [round(0.25 * math.sqrt(2.0) ** k, 4) for k in range(17)]  # 0.25 .. 64 1/s

@@ -7,7 +7,7 @@ robot I (several runs behind one endpoint: give ``--run``).
 imports everything once and forks the agents before any Zenoh session exists (forking after a
 session is open hangs the child), which starts tens of agents in a fraction of a second.
 
-With ``sim.acl`` (``swarm.acl``) the sim server admits only authenticated agents: give
+With ``sim.acl`` (``swarm.runtime.acl``) the sim server admits only authenticated agents: give
 ``--credentials FILE`` (lines ``user:password``; ``{robot}`` in FILE stands for the robot id, one file
 per robot) or ``--user`` and ``--password``.
 
@@ -30,9 +30,9 @@ from pathlib import Path
 import zenoh
 
 from robot_agent.agent import EXIT_FAILED, AgentOptions, RobotAgent
-from swarm import acl, wire
-from swarm.procs import die_with_parent
-from swarm.usage import OneLineArgumentParser, configure_logging, one_line
+from swarm.runtime import acl, wire
+from swarm.runtime.procs import die_with_parent
+from swarm.runtime.usage import OneLineArgumentParser, configure_logging, one_line
 
 
 def parse_robots(text: str) -> list[int]:

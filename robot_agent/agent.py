@@ -3,7 +3,7 @@
 The agent knows its robot id, the run id and an endpoint of the sim server; it fetches everything
 else (graph neighbours, controller, policy) from ``swarm/<run>/config/<i>``. It then subscribes to
 exactly its own pose key and to the message keys of its graph neighbours (never a wildcard over
-robots), runs its onboard controller (:mod:`swarm.onboard`, numpy only) and publishes, each tick,
+robots), runs its onboard controller (:mod:`swarm.sim.onboard`, numpy only) and publishes, each tick,
 its message to its neighbours and its saturated wheel speeds to the sim.
 
 Timing (docs/design.md, "Information timing"): at tick k the agent acts on its pose of tick k and on its
@@ -13,7 +13,7 @@ message that misses it counts as lost and the neighbour is left out of that tick
 packet would be. ``realtime``: no waiting; each neighbour's latest message counts while it is at
 most ``sim.message_max_age_ticks`` (default 10) old.
 
-Link faults (``swarm.faults``, from the scenario in the agent's config) act here, at the receiving
+Link faults (``swarm.core.faults``, from the scenario in the agent's config) act here, at the receiving
 end: the message of tick m from neighbour j counts only if the schedule says this robot heard it (link
 up, packet not lost), and under a delay d the newest usable message at tick k is that of tick k-1-d.
 A neighbour with no usable message is left out of the tick (the controller normalises over the
@@ -29,7 +29,7 @@ Receiving costs no Python thread: the pose and the neighbours' messages are appe
 in Zenoh's own receiving thread to bounded deques (:class:`Inlet`: a full one drops its oldest and
 counts it as overflow), their liveliness arrives in Zenoh ring channels; the main thread reads them
 once per tick and sleeps on a pipe the pose callback writes to. A pose or message is accepted only
-inside the window the agent's own clock justifies (:mod:`swarm.ticks`); every rejection is counted by
+inside the window the agent's own clock justifies (:mod:`swarm.runtime.ticks`); every rejection is counted by
 reason (invalid, old, future, overflow) in the record. Only the sim's liveliness has a callback
 (it fires once or twice a run); a stop request or the sim going away interrupts that ``recv`` with a
 signal (``run`` from the main thread; elsewhere the agent polls). In lockstep a neighbour's message
@@ -63,12 +63,12 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from swarm import wire
-from swarm.controller_kinds import robot_controller
-from swarm.faults import DROPPED, HEARD, LOST, LinkFaults, message_max_age_ticks, select_message
-from swarm.onboard import wheels_one
-from swarm.robot import RobotParams
-from swarm.ticks import ACCEPT, OLD, PoseWindow, step_s_of
+from swarm.core.faults import DROPPED, HEARD, LOST, LinkFaults, message_max_age_ticks, select_message
+from swarm.core.robot import RobotParams
+from swarm.runtime import wire
+from swarm.runtime.ticks import ACCEPT, OLD, PoseWindow, step_s_of
+from swarm.sim.controller_kinds import robot_controller
+from swarm.sim.onboard import wheels_one
 
 SERVER_LOST_S = 5.0
 """How long the sim's token may be gone before the agent takes the sim as gone (until its config
@@ -151,7 +151,7 @@ class AgentOptions:
     lease_ms: int = 1000
     startup_timeout_s: float = 60.0
     log_dir: Path | None = None
-    zenoh_settings: dict = field(default_factory=dict)  # more session settings (swarm.acl credentials)
+    zenoh_settings: dict = field(default_factory=dict)  # more session settings (swarm.runtime.acl credentials)
 
 
 @dataclass
@@ -159,12 +159,12 @@ class Counters:
     poses_received: int = 0
     poses_invalid: int = 0
     poses_old: int = 0  # tick not newer than the newest pose seen: a replay or reordered
-    # poses dated beyond the agent's window (swarm.ticks) are counted by its PoseWindow
+    # poses dated beyond the agent's window (swarm.runtime.ticks) are counted by its PoseWindow
     poses_skipped: int = 0
     messages_received: int = 0
     messages_invalid: int = 0
     messages_old: int = 0  # tick not newer than the newest accepted from that neighbour
-    messages_future: int = 0  # tick beyond the agent's window (swarm.ticks): forged or dated ahead
+    messages_future: int = 0  # tick beyond the agent's window (swarm.runtime.ticks): forged or dated ahead
     messages_lost: int = 0
     messages_dropped_by_fault: int = 0
     messages_lost_by_fault: int = 0
@@ -330,7 +330,7 @@ class RobotAgent:
 
     def _drain_messages(self) -> None:
         counters, newest = self.counters, self._newest_message_tick
-        limit = self._window.limit(time.perf_counter())  # no neighbour is ahead of the sim (swarm.ticks)
+        limit = self._window.limit(time.perf_counter())  # no neighbour is ahead of the sim (swarm.runtime.ticks)
         for j, inlet in self._msg_inlets.items():
             box = self._inbox[j]
             while (payload := inlet.take()) is not None:
@@ -358,7 +358,7 @@ class RobotAgent:
 
     def _next_pose(self, inlet: Inlet) -> wire.Pose | None:
         """Block for a pose newer than the last one used and inside the agent's window (the newest
-        if several are queued; one dated beyond it only once a second pose confirms it: swarm.ticks)."""
+        if several are queued; one dated beyond it only once a second pose confirms it: swarm.runtime.ticks)."""
         counters, window, newest = self.counters, self._window, None
         while newest is None:
             payload = self._recv(inlet)
@@ -519,7 +519,7 @@ class RobotAgent:
                 config.control_period_s,
                 config.scenario.get("controller"),
             )
-        except ValueError as error:  # swarm.policy.PolicyFormatError is a ValueError
+        except ValueError as error:  # swarm.sim.policy.PolicyFormatError is a ValueError
             record["exit_reason"] = f"bad controller: {error}"
             sim_sub.undeclare()
             return EXIT_FAILED
@@ -610,7 +610,7 @@ class RobotAgent:
                 box = self._inbox[j]
                 delay = 0 if no_faults else faults.delay_ticks(j, me, tick)
                 came = lambda k, box=box, j=j: k in box and (no_faults or faults.heard(j, me, k))  # noqa: E731
-                sent = select_message(tick, delay, max_age, came)  # swarm.faults' rule, KinematicSim's too
+                sent = select_message(tick, delay, max_age, came)  # swarm.core.faults' rule, KinematicSim's too
                 values = None if sent is None else box[sent]
                 needed = tick - 1 - delay  # what the timing names; older ones only stand in for it
                 reason = HEARD if no_faults or needed < 0 else faults.reason(j, me, needed)

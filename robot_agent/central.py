@@ -1,7 +1,7 @@
 """``python -m robot_agent.central``: a centralized controller as ONE process (label: centralized).
 
 ``centralized`` (thesis eq. 3.1 on the complete graph) and ``centralized_mec`` (full speed toward
-the minimum enclosing circle's centre of the current positions, ``swarm.experts``) need every
+the minimum enclosing circle's centre of the current positions, ``swarm.core.experts``) need every
 robot's pose at tick k, so they cannot run on board the robots: this single process subscribes to
 every pose (``swarm/<run>/robot/*/pose``, the one wildcard over robots in the runtime, and the
 reason the controller is not decentralized), waits for all poses of tick k, and publishes every
@@ -25,12 +25,12 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from swarm import wire
-from swarm.experts import centralized_mec_velocity, complete_consensus_velocity
-from swarm.procs import die_with_parent
-from swarm.robot import RobotParams, controlled_point, point_velocity_to_wheels
-from swarm.ticks import step_s_of, tick_limit
-from swarm.usage import EXIT_BAD_INPUT, OneLineArgumentParser, configure_logging, one_line
+from swarm.core.experts import centralized_mec_velocity, complete_consensus_velocity
+from swarm.core.robot import RobotParams, controlled_point, point_velocity_to_wheels
+from swarm.runtime import wire
+from swarm.runtime.procs import die_with_parent
+from swarm.runtime.ticks import step_s_of, tick_limit
+from swarm.runtime.usage import EXIT_BAD_INPUT, OneLineArgumentParser, configure_logging, one_line
 
 POSE_DEADLINE_S = 1.0
 """Longest the central controller waits for the rest of a tick's poses once the first one came."""
@@ -49,7 +49,7 @@ class CentralController:
         self._poses: dict[int, dict[int, wire.Pose]] = {}  # tick -> robot -> pose
         self._last_tick = -1  # the newest tick computed
         self._last_tick_at_s = 0.0  # when it was taken
-        self._step_s = 1.0  # swarm.ticks eq. (1), from the config once fetched
+        self._step_s = 1.0  # swarm.runtime.ticks eq. (1), from the config once fetched
         self.record: dict = {
             "role": "centralized",
             "pid": os.getpid(),
@@ -62,7 +62,7 @@ class CentralController:
             "ticks": 0,
             "poses_invalid": 0,
             "poses_old": 0,
-            "poses_future": 0,  # dated beyond what its own clock allows (swarm.ticks): forged or ahead
+            "poses_future": 0,  # dated beyond what its own clock allows (swarm.runtime.ticks): forged or ahead
             "callback_errors": 0,
             "incomplete_ticks": 0,
             "exit_reason": None,

@@ -8,8 +8,8 @@ Exit status: 0 the run completed, 1 it failed (agents did not come up), 2 bad in
 stderr: a scenario that does not load, an endpoint that cannot be listened on, ...), 130 interrupted.
 
 A scenario with ``sim.acl: true`` needs ``--users FILE``: the agents' ``user:password`` lines
-(``python -m swarm.acl credentials``); the router then admits only those users, each to its own
-neighbourhood of the graph (``swarm.acl``).
+(``python -m swarm.runtime.acl credentials``); the router then admits only those users, each to its own
+neighbourhood of the graph (``swarm.runtime.acl``).
 """
 
 from __future__ import annotations
@@ -20,10 +20,16 @@ from pathlib import Path
 
 import zenoh
 
-from swarm import acl, wire
-from swarm.procs import die_with_parent
-from swarm.scenario import ScenarioError, load_scenario, resolve_model_path
-from swarm.usage import EXIT_BAD_INPUT, OneLineArgumentParser, configure_logging, one_line, silenced_stderr
+from swarm.runtime import acl, wire
+from swarm.runtime.procs import die_with_parent
+from swarm.runtime.usage import (
+    EXIT_BAD_INPUT,
+    OneLineArgumentParser,
+    configure_logging,
+    one_line,
+    silenced_stderr,
+)
+from swarm.scenarios.scenario import ScenarioError, load_scenario, resolve_model_path
 
 ADMIN_SPACE = {"adminspace/enabled": True, "adminspace/permissions": {"read": True, "write": False}}
 
@@ -49,7 +55,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--model", help="policy file for controller gnn (default: the scenario's)")
     parser.add_argument("--lease-ms", type=int, default=1000, help="Zenoh lease (default 1000 ms)")
     parser.add_argument(
-        "--users", help="sim.acl: file of the agents' user:password lines (python -m swarm.acl credentials)"
+        "--users", help="sim.acl: file of the agents' user:password lines (python -m swarm.runtime.acl credentials)"
     )
     parser.add_argument("--startup-timeout", type=float, default=60.0, help="seconds to wait for all agents")
     parser.add_argument(
@@ -72,7 +78,7 @@ def write_results(out_dir: Path, code: int) -> None:
     """At the end of a run served by hand (several hosts): ``metrics.json`` and the plots from what is on
     disk (marked partial unless the run completed), then the summary and where the results are."""
     from sim_server.server import EXIT_INTERRUPTED
-    from swarm.results import report, summary_lines
+    from swarm.scenarios.results import report, summary_lines
 
     why = None
     if code != 0:
@@ -150,7 +156,7 @@ def acl_settings(scenario, args: argparse.Namespace) -> dict:
     if not args.users:
         raise ValueError(
             f"{args.scenario} sets sim.acl: give --users FILE of the agents' user:password lines"
-            " (python -m swarm.acl credentials --robots N --out DIR writes one)"
+            " (python -m swarm.runtime.acl credentials --robots N --out DIR writes one)"
         )
     users = Path(args.users)
     if not users.is_file():

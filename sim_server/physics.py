@@ -3,8 +3,8 @@
 One :class:`PhysicsWorld` owns one PyBullet ``DIRECT`` client (never the global default
 client), so several worlds can live in one process. Robots are the URDF of
 :mod:`sim_server.urdf`; poses in and out are **axle-centre** poses ``(x_m, y_m, theta_rad)``,
-the frame of :mod:`swarm.robot`; wheel commands are wheel **linear** speeds in m/s, as
-:func:`swarm.robot.unicycle_to_wheels` produces them.
+the frame of :mod:`swarm.core.robot`; wheel commands are wheel **linear** speeds in m/s, as
+:func:`swarm.core.robot.unicycle_to_wheels` produces them.
 
 Construction choices (each measured; see ``docs`` / NOTES-measured): inertia from the URDF,
 caster balls as collision shapes of the body link, wheels collide only with the ground
@@ -26,7 +26,7 @@ import numpy as np
 import pybullet as pb
 
 from sim_server.urdf import packaged_urdf_path, render_urdf, write_urdf
-from swarm.robot import RobotParams
+from swarm.core.robot import RobotParams
 
 GRAVITY_MPS2 = 9.81
 
@@ -240,7 +240,7 @@ class PhysicsWorld:
 
         Converted to joint angular speeds ``v / wheel_radius`` and applied with
         ``VELOCITY_CONTROL`` and the world's force limit. No saturation here: the caller
-        (agent / controller) saturates with :func:`swarm.robot.saturate_wheels`.
+        (agent / controller) saturates with :func:`swarm.core.robot.saturate_wheels`.
         """
         w = np.asarray(wheels, dtype=np.float64)
         if w.shape != (self._n, 2):

@@ -20,9 +20,9 @@ boundary k+1 with what it has); a robot without a fresh command for ``sim.watchd
 time, or whose agent died, stops.
 
 The server also answers ``swarm/<run>/config/<i>`` queries with robot i's configuration
-(``swarm.wire.AgentConfig``: scenario, robot parameters, graph neighbours, controller, policy
+(``swarm.runtime.wire.AgentConfig``: scenario, robot parameters, graph neighbours, controller, policy
 file) and holds the liveliness token ``swarm/<run>/alive/sim``; agents exit when it goes away
-(for good: ``sim.server_lost_s``). A command that does not decode (``swarm.wire``) is dropped and
+(for good: ``sim.server_lost_s``). A command that does not decode (``swarm.runtime.wire``) is dropped and
 counted as invalid, one whose tick is not newer than the last accepted from that robot as old.
 Each ``trajectory.jsonl`` line also carries ``wheels``: the (saturated) wheel speeds applied from
 that tick to the next, so the controller's timing can be checked after the run. Per-tick statistics
@@ -49,10 +49,10 @@ import numpy as np
 import zenoh
 
 from sim_server.physics import PhysicsWorld
-from swarm import wire
-from swarm.results import TrajectoryWriter, prepare_results_dir
-from swarm.robot import saturate_wheels
-from swarm.scenario import Scenario
+from swarm.core.robot import saturate_wheels
+from swarm.runtime import wire
+from swarm.scenarios.results import TrajectoryWriter, prepare_results_dir
+from swarm.scenarios.scenario import Scenario
 
 log = logging.getLogger(__name__)
 
@@ -78,7 +78,7 @@ class ServerOptions:
     startup_timeout_s: float = 60.0
     policy: bytes | None = None
     quiet: bool = False
-    zenoh_settings: dict = field(default_factory=dict)  # more session settings (swarm.acl)
+    zenoh_settings: dict = field(default_factory=dict)  # more session settings (swarm.runtime.acl)
 
 
 def agent_configs(scenario: Scenario, run: str, policy: bytes | None) -> list[wire.AgentConfig]:

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import yaml
 
-from swarm.controller_kinds import CONTROLLER_KINDS
+from swarm.sim.controller_kinds import CONTROLLER_KINDS
 
 SWEEP_CONTROLLER_NAMES = [
     "local_consensus",
@@ -27,7 +27,7 @@ SWEEP_CONTROLLER_NAMES = [
     "mec_flood",
     "mec_flood_forward",
     "centralized_mec",
-]  # swarm.sweep.SWEEP_CONTROLLERS (not imported here: it pulls in numba)
+]  # swarm.scenarios.sweep.SWEEP_CONTROLLERS (not imported here: it pulls in numba)
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_SCENARIO = "scenarios/thesis/cycle-gnn.yaml"
@@ -48,7 +48,7 @@ def _find_default_scenario() -> Path:
 
 def _load_with_overrides(path: Path, args: argparse.Namespace):
     """Load a scenario, applying command-line overrides before validation so that errors name keys."""
-    from swarm.scenario import ScenarioError, load_scenario, parse_scenario, resolve_model_path
+    from swarm.scenarios.scenario import ScenarioError, load_scenario, parse_scenario, resolve_model_path
 
     scenario = load_scenario(path)
     if not (args.engine or args.controller or args.model or args.duration):
@@ -59,7 +59,7 @@ def _load_with_overrides(path: Path, args: argparse.Namespace):
     if args.duration:
         data["sim"]["duration_s"] = args.duration
     if args.controller:  # the new kind's defaults for the options only the old kind took
-        from swarm.controller_kinds import controller_kind
+        from swarm.sim.controller_kinds import controller_kind
 
         takes = controller_kind(args.controller).options
         data["controller"] = {
@@ -100,9 +100,9 @@ def _results_dir(args: argparse.Namespace, name: str) -> Path:
 
 
 def _write_recordings(out_dir: Path, formats: list[str] | None) -> None:
-    """The recordings asked for with ``--record`` (``swarm.recording``), from the results on disk."""
+    """The recordings asked for with ``--record`` (``swarm.scenarios.recording``), from the results on disk."""
     if formats:
-        from swarm.recording import write_recordings
+        from swarm.scenarios.recording import write_recordings
 
         for path in write_recordings(out_dir, formats):
             print(f"  recording: {path}")
@@ -110,7 +110,7 @@ def _write_recordings(out_dir: Path, formats: list[str] | None) -> None:
 
 def _print_partial(out_dir: Path, formats: list[str] | None) -> None:
     """After a run that ended early: its partial results, if any were written, to stdout."""
-    from swarm.results import summary_lines
+    from swarm.scenarios.results import summary_lines
 
     metrics_path = out_dir / "metrics.json"
     try:
@@ -124,14 +124,14 @@ def _print_partial(out_dir: Path, formats: list[str] | None) -> None:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from swarm.distributed import RunFailed
-    from swarm.results import summary_lines
-    from swarm.runner import run_scenario
+    from swarm.runtime.distributed import RunFailed
+    from swarm.runtime.runner import run_scenario
+    from swarm.scenarios.results import summary_lines
 
     path = Path(args.scenario) if args.scenario else _find_default_scenario()
     scenario = _load_with_overrides(path, args)
     if args.record:
-        from swarm.recording import check_formats
+        from swarm.scenarios.recording import check_formats
 
         check_formats(args.record)
     out_dir = _results_dir(args, scenario.name)
@@ -152,7 +152,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from swarm.results import report, summary_lines
+    from swarm.scenarios.results import report, summary_lines
 
     out_dir = Path(args.run_dir)
     outcome = report(out_dir)
@@ -165,7 +165,7 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
-    from swarm.sweep import SweepConfig, run_sweep
+    from swarm.scenarios.sweep import SweepConfig, run_sweep
 
     config = SweepConfig()
     if args.config:
@@ -202,8 +202,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    from swarm.evaluate import EvaluateConfig, evaluate
-    from swarm.sweep import SweepConfig
+    from swarm.scenarios.evaluate import EvaluateConfig, evaluate
+    from swarm.scenarios.sweep import SweepConfig
 
     limits = {}
     for item in args.limit or []:
@@ -246,7 +246,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 def cmd_train(args: argparse.Namespace) -> int:
     import importlib
 
-    from swarm.train import ALGORITHMS
+    from swarm.learn.train import ALGORITHMS
 
     overrides: dict = {}
     if args.config:
@@ -272,7 +272,7 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def cmd_collect(args: argparse.Namespace) -> int:
-    from swarm.data import collect, collect_config
+    from swarm.learn.data import collect, collect_config
 
     overrides = {
         "samples": args.samples,
@@ -285,7 +285,7 @@ def cmd_collect(args: argparse.Namespace) -> int:
         "seed": args.seed,
     }
     if args.robot_from:  # the robot of a scenario: its speed limit and geometry
-        from swarm.scenario import load_scenario
+        from swarm.scenarios.scenario import load_scenario
 
         robot = load_scenario(args.robot_from).robot
         overrides.update(robot.model_dump())
@@ -301,8 +301,8 @@ def cmd_collect(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from swarm.topologies import kinds
-    from swarm.usage import OneLineArgumentParser
+    from swarm.core.topologies import kinds
+    from swarm.runtime.usage import OneLineArgumentParser
 
     grid_kinds = kinds(grid=True)
 
@@ -422,7 +422,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     evaluate.set_defaults(handler=cmd_evaluate)
 
-    from swarm.train import ALGORITHMS
+    from swarm.learn.train import ALGORITHMS
 
     train = commands.add_parser(
         "train",
@@ -444,7 +444,7 @@ def build_parser() -> argparse.ArgumentParser:
         help="collect expert data for behavioural cloning in the batched simulator",
         description="Roll out the centralized expert (or local consensus) on a mix of graphs and sizes with "
         "every robot's start random, and record each robot's features (with the policy's message timing) "
-        "and the expert's saturated robot-frame velocity to one .npz file (swarm.data).",
+        "and the expert's saturated robot-frame velocity to one .npz file (swarm.learn.data).",
     )
     collect.add_argument("--preset", default="default", help="default | thesis (complete graph, N=6, M, Phi)")
     collect.add_argument("--samples", type=int, help="robot-ticks to record (default 1,000,000)")
@@ -464,9 +464,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from swarm.distributed import RunFailed
-    from swarm.scenario import ScenarioError
-    from swarm.usage import configure_logging, one_line
+    from swarm.runtime.distributed import RunFailed
+    from swarm.runtime.usage import configure_logging, one_line
+    from swarm.scenarios.scenario import ScenarioError
 
     args = build_parser().parse_args(argv)
     configure_logging(-1 if args.quiet else args.verbose)

@@ -1,4 +1,4 @@
-"""Enforced decentralization (``sim.acl``, swarm/acl.py): Zenoh access control generated from the graph.
+"""Enforced decentralization (``sim.acl``, swarm/runtime/acl.py): Zenoh access control generated from the graph.
 
 The rules and credentials are checked as data; then a real run with access control on (sim server,
 one agent process per robot, real Zenoh sessions) must converge while a rogue process, authenticated
@@ -30,8 +30,8 @@ sys.path.insert(0, str(PROJECT_ROOT))
 
 import outside  # noqa: E402
 
-from swarm import acl, wire  # noqa: E402 (after the path, for the script)
-from swarm.graphs import line  # noqa: E402
+from swarm.core.graphs import line  # noqa: E402
+from swarm.runtime import acl, wire  # noqa: E402 (after the path, for the script)
 
 ROGUE_WHEELS = (0.4321, -0.4321)
 """Wheel speeds the rogue puts on other robots' command keys: they must never show in the trajectory."""

@@ -2,7 +2,7 @@
 
 Each case runs the real command in a subprocess (``swarm``, ``python -m robot_agent`` and the
 ``robot-agent`` script, ``python -m sim_server``, ``python -m robot_agent.central``, ``python -m
-swarm.acl``) and checks its exit status, that stderr is exactly one line naming the problem, and for
+swarm.runtime.acl``) and checks its exit status, that stderr is exactly one line naming the problem, and for
 the agents that an unreachable endpoint is given up after a bounded time.
 """
 
@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from swarm.procs import free_tcp_port
+from swarm.runtime.procs import free_tcp_port
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 SCENARIO = PROJECT_ROOT / "scenarios" / "thesis" / "cycle-local_consensus.yaml"
@@ -252,10 +252,10 @@ def test_sim_server_command_line(files, tmp_path, args, expected):
 
 def test_acl_credentials_command(tmp_path):
     one_line_error(
-        [PYTHON, "-m", "swarm.acl", "credentials", "--robots", "0", "--out", str(tmp_path)], "--robots"
+        [PYTHON, "-m", "swarm.runtime.acl", "credentials", "--robots", "0", "--out", str(tmp_path)], "--robots"
     )
     result = subprocess.run(
-        [PYTHON, "-m", "swarm.acl", "credentials", "--robots", "2", "--out", str(tmp_path / "c")],
+        [PYTHON, "-m", "swarm.runtime.acl", "credentials", "--robots", "2", "--out", str(tmp_path / "c")],
         capture_output=True,
         text=True,
         check=True,

@@ -13,10 +13,10 @@ import torch
 import yaml
 
 from swarm.cli import main
-from swarm.data import collect, collect_config
-from swarm.policy import load_policy
-from swarm.train.bc import make_config, train
-from swarm.train.evaluate import compare, local_consensus
+from swarm.learn.data import collect, collect_config
+from swarm.learn.train.bc import make_config, train
+from swarm.learn.train.evaluate import compare, local_consensus
+from swarm.sim.policy import load_policy
 
 
 def quiet(config):

@@ -19,10 +19,10 @@ import yaml
 from PIL import Image
 from test_scenario import BAD_SCENARIOS, THESIS_SCENARIOS, VALID, write_case
 
-from swarm import graphs
 from swarm.cli import main
-from swarm.results import read_trajectory
-from swarm.scenario import load_scenario, parse_scenario
+from swarm.core import graphs
+from swarm.scenarios.results import read_trajectory
+from swarm.scenarios.scenario import load_scenario, parse_scenario
 
 METRICS_KEYS = {
     "converged",

@@ -1,17 +1,17 @@
-"""swarm.data: expert samples from the batched simulator, with the policy's information timing."""
+"""swarm.learn.data: expert samples from the batched simulator, with the policy's information timing."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from swarm import graphs
-from swarm.data import GRAPH_KINDS, ExpertRecorder, collect, collect_config, load_dataset
-from swarm.experts import complete_consensus_velocity
-from swarm.features import FeatureSpec, saturate_local_velocity
-from swarm.initial_poses import random_poses
-from swarm.kinematic import KinematicSim
-from swarm.robot import RobotParams, world_to_local
+from swarm.core import graphs
+from swarm.core.experts import complete_consensus_velocity
+from swarm.core.initial_poses import random_poses
+from swarm.core.robot import RobotParams, world_to_local
+from swarm.learn.data import GRAPH_KINDS, ExpertRecorder, collect, collect_config, load_dataset
+from swarm.sim.features import FeatureSpec, saturate_local_velocity
+from swarm.sim.kinematic import KinematicSim
 
 ROBOT = RobotParams()
 

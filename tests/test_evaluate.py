@@ -1,4 +1,4 @@
-"""Tests for ``swarm evaluate`` (swarm.evaluate on swarm.sweep), DAgger (swarm.train.dagger) and the
+"""Tests for ``swarm evaluate`` (swarm.scenarios.evaluate on swarm.scenarios.sweep), DAgger (swarm.learn.train.dagger) and the
 shipped default model of controller ``gnn`` (models/gnn_default.npz)."""
 
 from __future__ import annotations
@@ -10,14 +10,14 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from swarm import scenario as scenario_module
 from swarm.cli import main
-from swarm.data import collect, collect_config
-from swarm.evaluate import CONTROLLER_ORDER
-from swarm.policy import load_policy
-from swarm.scenario import resolve_model_path
-from swarm.sweep import SweepConfig, connected, run_cell
-from swarm.train import dagger
+from swarm.learn.data import collect, collect_config
+from swarm.learn.train import dagger
+from swarm.scenarios import scenario as scenario_module
+from swarm.scenarios.evaluate import CONTROLLER_ORDER
+from swarm.scenarios.scenario import resolve_model_path
+from swarm.scenarios.sweep import SweepConfig, connected, run_cell
+from swarm.sim.policy import load_policy
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_MODEL = PROJECT_ROOT / "models" / "gnn_default.npz"

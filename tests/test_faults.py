@@ -1,4 +1,4 @@
-"""Link faults (swarm.faults): the schedule, the scenario schema, the kinematic engine, the results of
+"""Link faults (swarm.core.faults): the schedule, the scenario schema, the kinematic engine, the results of
 faulty runs, and the PyBullet runtime with real agent processes that cope with missing neighbours.
 
 The runtime tests run ``python -m swarm.cli run`` (sim server + one process per robot over Zenoh, real
@@ -16,11 +16,9 @@ import pytest
 import yaml
 from test_runtime import Run, agent_records, graphs_min_distance
 
-from swarm import graphs
 from swarm.cli import main
-from swarm.controller_kinds import robot_controller
-from swarm.controllers import LocalConsensus
-from swarm.faults import (
+from swarm.core import graphs
+from swarm.core.faults import (
     DROPPED,
     HEARD,
     LOST,
@@ -34,12 +32,14 @@ from swarm.faults import (
     usable,
     usable_ticks,
 )
-from swarm.kinematic import KinematicSim
-from swarm.onboard import OnboardLocalConsensus
-from swarm.policy import load_policy, save_policy
-from swarm.results import read_trajectory, summarize
-from swarm.robot import RobotParams, point_velocity_to_wheels
-from swarm.scenario import ScenarioError, load_scenario, parse_scenario
+from swarm.core.robot import RobotParams, point_velocity_to_wheels
+from swarm.scenarios.results import read_trajectory, summarize
+from swarm.scenarios.scenario import ScenarioError, load_scenario, parse_scenario
+from swarm.sim.controller_kinds import robot_controller
+from swarm.sim.controllers import LocalConsensus
+from swarm.sim.kinematic import KinematicSim
+from swarm.sim.onboard import OnboardLocalConsensus
+from swarm.sim.policy import load_policy, save_policy
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 FAULT_SCENARIOS = sorted((PROJECT_ROOT / "scenarios" / "faults").glob("*.yaml"))

@@ -1,22 +1,22 @@
-"""swarm.features: the thesis's M and Phi (eq. 3.4-3.7, fixed) and their K-hop generalisation."""
+"""swarm.sim.features: the thesis's M and Phi (eq. 3.4-3.7, fixed) and their K-hop generalisation."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from swarm import graphs
-from swarm.features import (
+from swarm.core import graphs
+from swarm.core.robot import RobotParams, controlled_point, local_point_velocity_to_wheels, world_to_local
+from swarm.sim.features import (
     FeatureSpec,
     batched_features,
     messages,
     robot_features,
     saturate_local_velocity,
 )
-from swarm.kinematic import KinematicSim
-from swarm.links import Links
-from swarm.policy import FeatureController
-from swarm.robot import RobotParams, controlled_point, local_point_velocity_to_wheels, world_to_local
+from swarm.sim.kinematic import KinematicSim
+from swarm.sim.links import Links
+from swarm.sim.policy import FeatureController
 
 ROBOT = RobotParams()
 

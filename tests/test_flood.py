@@ -11,13 +11,14 @@ import numpy as np
 import pytest
 import torch
 
-from swarm import graphs, kernels
-from swarm.faults import LinkFaults
-from swarm.kinematic import KinematicSim
-from swarm.models import build_model, load_checkpoint
-from swarm.models.flood import FloodGNN
-from swarm.policy import FloodPolicy, load_policy
-from swarm.robot import RobotParams
+from swarm.core import graphs
+from swarm.core.faults import LinkFaults
+from swarm.core.robot import RobotParams
+from swarm.learn.models import build_model, load_checkpoint
+from swarm.learn.models.flood import FloodGNN
+from swarm.sim import kernels
+from swarm.sim.kinematic import KinematicSim
+from swarm.sim.policy import FloodPolicy, load_policy
 
 ROBOT = RobotParams()
 DT = 0.05
@@ -143,7 +144,7 @@ def test_batched_kernel_over_blocks_threads_and_targets_taken_from_neighbours(tm
     a partial one), on threads or not, and takes the target a neighbour sent with the very memory a
     robot now has instead of recomputing it: all the same as the per-robot form, which computes every
     target itself, to 1e-9, and the threaded run bit for bit the serial one."""
-    from swarm import flood_kernel
+    from swarm.sim import flood_kernel
 
     policy = _policy(tmp_path, _random_model(15))
     batch, count, ticks = 20, 7, 40
@@ -287,8 +288,8 @@ def test_policy_runs_without_torch_or_numba(tmp_path):
         f"""
         import sys
         import numpy as np
-        import swarm.policy, swarm.onboard
-        controller = swarm.policy.load_policy(open({str(path)!r}, "rb").read(), swarm.robot.RobotParams(), 4)
+        import swarm.sim.policy, swarm.sim.onboard
+        controller = swarm.sim.policy.load_policy(open({str(path)!r}, "rb").read(), swarm.core.robot.RobotParams(), 4)
         heard = np.zeros((0, controller.message_dim))
         for tick in range(3):
             u, message = controller.act_one(np.array([0.1, 0.2, 0.3]), heard)
@@ -319,9 +320,9 @@ def test_checkpoint_round_trip_and_old_files_still_load(tmp_path):
 
 
 def test_training_replay_memory_equals_the_policy_memory(tmp_path):
-    """The trainer's arg-max replay (``swarm.train.flood.argmax_positions``) rebuilds exactly the
+    """The trainer's arg-max replay (``swarm.learn.train.flood.argmax_positions``) rebuilds exactly the
     memory the policy carries (``FloodPolicy.raw_step``), tick by tick."""
-    from swarm.train.flood import FloodConfig, argmax_positions, run_episode
+    from swarm.learn.train.flood import FloodConfig, argmax_positions, run_episode
 
     model = _random_model(14)
     policy = _policy(tmp_path, model)
@@ -341,14 +342,14 @@ def test_training_replay_memory_equals_the_policy_memory(tmp_path):
 def test_steering_stage_fits_the_steering_alone(tmp_path, capsys):
     """``imitation: false`` + ``steering_steps`` from an ``init`` file: the flood and the target keep
     the file's weights bit for bit, and the steering gets closer to the expert's steering law
-    (``swarm.experts.drive_toward_velocity``, the oracle) on rows it never saw. A missing init file
+    (``swarm.core.experts.drive_toward_velocity``, the oracle) on rows it never saw. A missing init file
     is bad input: one line, exit 2."""
     import yaml
 
     from swarm.cli import main
-    from swarm.experts import drive_toward_velocity
-    from swarm.features import saturate_local_velocity
-    from swarm.robot import world_to_local
+    from swarm.core.experts import drive_toward_velocity
+    from swarm.core.robot import world_to_local
+    from swarm.sim.features import saturate_local_velocity
 
     init = _random_model(17).export(tmp_path / "init.npz", ROBOT)
     options = {

@@ -1,7 +1,7 @@
 """The max-flooding GNN (``gnn_flood``) in the distributed runtime: real ``swarm run`` processes (sim
 server + one torch-free agent per robot), real Zenoh, real PyBullet.
 
-Oracle: the batched kinematic engine's compiled forward (``swarm.flood_kernel``) fed the poses the
+Oracle: the batched kinematic engine's compiled forward (``swarm.sim.flood_kernel``) fed the poses the
 server logged and its own previous outbox as everybody's inbox (lockstep: every agent heard all
 its neighbours' messages of the last tick).
 """
@@ -12,8 +12,8 @@ import numpy as np
 import torch
 from test_runtime import Run, agent_records, assert_commands_equal_batched_policy, scenario_file
 
-from swarm.models.flood import FloodGNN
-from swarm.robot import RobotParams
+from swarm.core.robot import RobotParams
+from swarm.learn.models.flood import FloodGNN
 
 
 def test_flood_gnn_agents_are_torch_free_and_compute_the_batched_forward(tmp_path):

@@ -1,4 +1,4 @@
-"""Ticks that cannot be forged forward (swarm/ticks.py), checked from outside.
+"""Ticks that cannot be forged forward (swarm/runtime/ticks.py), checked from outside.
 
 A separate process that imports none of the project's code (``tests/outside.py``) joins a real lockstep
 run and puts, once each, a genuine sample it received with its tick moved 10^6 ahead: robot 5's pose,

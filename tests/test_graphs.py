@@ -1,4 +1,4 @@
-"""Tests for swarm.graphs: topologies, validation, Laplacian, connectivity."""
+"""Tests for swarm.core.graphs: topologies, validation, Laplacian, connectivity."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from swarm.graphs import (
+from swarm.core.graphs import (
     THESIS_WEAK_GRAPH,
     algebraic_connectivity,
     complete,

@@ -1,7 +1,7 @@
-"""Tests for the batched kinematic simulator (swarm.kinematic), its numba kernels (swarm.kernels), the
-neighbour lists (swarm.links) and the batched controllers (swarm.controllers).
+"""Tests for the batched kinematic simulator (swarm.sim.kinematic), its numba kernels (swarm.sim.kernels), the
+neighbour lists (swarm.sim.links) and the batched controllers (swarm.sim.controllers).
 
-Covers: kernels == numpy reference of swarm.robot; the information timing of docs/design.md (tick 0, k-1
+Covers: kernels == numpy reference of swarm.core.robot; the information timing of docs/design.md (tick 0, k-1
 messages, k hops = k ticks); batched == per-robot controller; symmetries (relabelling, rigid motions);
 centroid conservation; disk graphs; keep(); batch == separate runs.
 """
@@ -15,18 +15,19 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from swarm import graphs, kernels
-from swarm.controllers import Centralized, LocalConsensus
-from swarm.experts import consensus_velocity
-from swarm.kinematic import KinematicSim
-from swarm.links import Links
-from swarm.robot import (
+from swarm.core import graphs
+from swarm.core.experts import consensus_velocity
+from swarm.core.robot import (
     RobotParams,
     controlled_point,
     integrate_unicycle,
     point_velocity_to_wheels,
     wrap_angle,
 )
+from swarm.sim import kernels
+from swarm.sim.controllers import Centralized, LocalConsensus
+from swarm.sim.kinematic import KinematicSim
+from swarm.sim.links import Links
 
 CONTROLLERS = [LocalConsensus, Centralized]
 seeds = st.integers(0, 2**32 - 1)

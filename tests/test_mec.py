@@ -1,8 +1,8 @@
 """The minimum-enclosing-circle controllers: ``mec_flood`` (decentralized) and ``centralized_mec``.
 
-Oracles are independent of the code under test: Welzl's circle of ``swarm.metrics`` for the numba
+Oracles are independent of the code under test: Welzl's circle of ``swarm.core.metrics`` for the numba
 circle, hand-written hop counts on a line, a numpy argmax over the initial positions for the
-completed flood, ``swarm.experts`` (numpy) for the kernels' drive law.
+completed flood, ``swarm.core.experts`` (numpy) for the kernels' drive law.
 """
 
 from __future__ import annotations
@@ -12,17 +12,17 @@ import math
 import numpy as np
 import pytest
 
-from swarm import graphs, metrics
-from swarm.controller_kinds import robot_controller
-from swarm.controllers import CentralizedMec, MecFlood
-from swarm.experts import centralized_mec_velocity, drive_toward_velocity
-from swarm.faults import LinkFaults
-from swarm.kinematic import KinematicSim
-from swarm.mec_kernels import welzl_circle
-from swarm.onboard import OnboardMecFlood
-from swarm.robot import RobotParams, point_velocity_to_wheels
-from swarm.scenario import ScenarioError, parse_scenario
-from swarm.sweep import SweepConfig, converge_batch
+from swarm.core import graphs, metrics
+from swarm.core.experts import centralized_mec_velocity, drive_toward_velocity
+from swarm.core.faults import LinkFaults
+from swarm.core.robot import RobotParams, point_velocity_to_wheels
+from swarm.scenarios.scenario import ScenarioError, parse_scenario
+from swarm.scenarios.sweep import SweepConfig, converge_batch
+from swarm.sim.controller_kinds import robot_controller
+from swarm.sim.controllers import CentralizedMec, MecFlood
+from swarm.sim.kinematic import KinematicSim
+from swarm.sim.mec_kernels import welzl_circle
+from swarm.sim.onboard import OnboardMecFlood
 
 ROBOT = RobotParams()
 DT = 0.05
@@ -179,7 +179,7 @@ def test_onboard_flood_computes_what_the_batched_one_computes_whatever_the_order
 
 def advance(sim: KinematicSim, u_world: np.ndarray) -> None:
     """Move the robots with the commands :meth:`KinematicSim.act` already returned."""
-    from swarm import kernels
+    from swarm.sim import kernels
 
     kernels.advance_unicycles(
         sim.poses.reshape(-1, 3),
@@ -252,7 +252,7 @@ def test_centralized_mec_kernel_is_the_numpy_expert():
     ],
 )
 def test_mec_controllers_gather_near_the_lower_bound(topology, controller):
-    from swarm.sweep import run_cell, summarize_cell
+    from swarm.scenarios.sweep import run_cell, summarize_cell
 
     config = SweepConfig(seeds=1000, first_starts=40, controllers=[controller])
     row = summarize_cell(run_cell(config, topology, 24, controller))
@@ -262,7 +262,7 @@ def test_mec_controllers_gather_near_the_lower_bound(topology, controller):
 
 def test_flood_gathers_under_half_the_messages_lost():
     config = SweepConfig(seeds=1000, first_starts=60, packet_loss=0.5)
-    from swarm.sweep import run_cell, summarize_cell
+    from swarm.scenarios.sweep import run_cell, summarize_cell
 
     lossy = summarize_cell(run_cell(config, "line", 24, "mec_flood"))
     assert lossy["success_rate"] == 1.0 and lossy["median_ratio_to_lower_bound"] < 1.10
@@ -294,7 +294,7 @@ def test_scenario_schema_takes_the_new_kinds_and_names_bad_options():
 
 
 def test_sweep_runs_mec_flood_on_the_line_sorted_by_x():
-    from swarm.sweep import cell_starts
+    from swarm.scenarios.sweep import cell_starts
 
     config = SweepConfig(seeds=1000, first_starts=5)
     line, _, _ = cell_starts(config, "line", 12)
@@ -308,8 +308,8 @@ def test_sweep_runs_mec_flood_on_the_line_sorted_by_x():
 
 
 def test_disconnection_check_of_the_sweep_agrees_with_the_dense_one():
-    from swarm.links import Links
-    from swarm.sweep import connected, links_connected
+    from swarm.scenarios.sweep import connected, links_connected
+    from swarm.sim.links import Links
 
     rng = np.random.default_rng(0)
     positions = rng.uniform(-3, 3, (200, 20, 2))

@@ -13,11 +13,11 @@ import json
 import numpy as np
 from test_runtime import Run, agent_records, scenario_file
 
-from swarm.controllers import CentralizedMec, MecFlood
-from swarm.links import Links
-from swarm.results import read_trajectory
-from swarm.robot import controlled_point, point_velocity_to_wheels
-from swarm.scenario import load_scenario
+from swarm.core.robot import controlled_point, point_velocity_to_wheels
+from swarm.scenarios.results import read_trajectory
+from swarm.scenarios.scenario import load_scenario
+from swarm.sim.controllers import CentralizedMec, MecFlood
+from swarm.sim.links import Links
 
 
 def logged(out):

@@ -1,4 +1,4 @@
-"""Tests for swarm.metrics: metrics, minimum enclosing circle, lower bound, convergence time."""
+"""Tests for swarm.core.metrics: metrics, minimum enclosing circle, lower bound, convergence time."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from swarm.metrics import (
+from swarm.core.metrics import (
     METRICS,
     component_results,
     convergence_time,

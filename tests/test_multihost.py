@@ -1,4 +1,4 @@
-"""Several hosts, emulated: two Linux network namespaces joined by a bridge (``swarm.netns``).
+"""Several hosts, emulated: two Linux network namespaces joined by a bridge (``swarm.runtime.netns``).
 
 The sim server runs in one namespace ("the sim host") listening on ``tcp/0.0.0.0:7447``; robot agents
 are started by hand as a user on another host would, with only the endpoint and a robot id (no run
@@ -21,20 +21,20 @@ import numpy as np
 import pytest
 import yaml
 
-from swarm import wire
-from swarm.netns import Hosts, NamespaceError, Processes, why_no_namespaces
-from swarm.results import read_trajectory, summarize
-from swarm.scenario import load_scenario
+from swarm.runtime import wire
+from swarm.runtime.netns import Hosts, NamespaceError, Processes, why_no_namespaces
+from swarm.scenarios.results import read_trajectory, summarize
+from swarm.scenarios.scenario import load_scenario
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
-SIM_ADDRESS = "192.0.2.1"  # swarm.netns.Hosts: the first host
+SIM_ADDRESS = "192.0.2.1"  # swarm.runtime.netns.Hosts: the first host
 PORT = 7447
 TIMEOUT_S = 60.0
 
 
 @pytest.fixture
 def two_hosts():
-    """The sim host and the robot host (``swarm.netns.Hosts``), deleted afterwards."""
+    """The sim host and the robot host (``swarm.runtime.netns.Hosts``), deleted afterwards."""
     reason = why_no_namespaces()
     if reason:
         pytest.skip(reason)

@@ -1,4 +1,4 @@
-"""Tests for swarm.onboard: the per-robot controller an agent runs computes what the batched
+"""Tests for swarm.sim.onboard: the per-robot controller an agent runs computes what the batched
 controller of the kinematic engine computes for that robot, and the agent's imports stay light."""
 
 from __future__ import annotations
@@ -9,12 +9,12 @@ import sys
 import numpy as np
 import pytest
 
-from swarm import graphs
-from swarm.controller_kinds import robot_controller
-from swarm.controllers import LocalConsensus
-from swarm.links import Links
-from swarm.onboard import OnboardLocalConsensus, wheels_one
-from swarm.robot import RobotParams, controlled_point, point_velocity_to_wheels
+from swarm.core import graphs
+from swarm.core.robot import RobotParams, controlled_point, point_velocity_to_wheels
+from swarm.sim.controller_kinds import robot_controller
+from swarm.sim.controllers import LocalConsensus
+from swarm.sim.links import Links
+from swarm.sim.onboard import OnboardLocalConsensus, wheels_one
 
 
 @pytest.mark.parametrize("adjacency", [graphs.cycle(6), graphs.line(5), graphs.THESIS_WEAK_GRAPH * 0.5])
@@ -68,7 +68,7 @@ def test_controller_factory_refuses_what_does_not_run_on_board():
 
 def test_agent_modules_import_no_torch_pybullet_or_numba():
     code = (
-        "import sys, robot_agent.agent, robot_agent.central, robot_agent.__main__, swarm.policy;"
+        "import sys, robot_agent.agent, robot_agent.central, robot_agent.__main__, swarm.sim.policy;"
         "print(sorted(m for m in ('torch', 'pybullet', 'numba') if m in sys.modules))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout

@@ -1,4 +1,4 @@
-"""PyBullet robot against the unicycle model of swarm.robot (thesis 2.1).
+"""PyBullet robot against the unicycle model of swarm.core.robot (thesis 2.1).
 
 Measured with the defaults (240 Hz, 10 solver iterations, 2 N traction limit = 0.08 N m):
 
@@ -23,7 +23,7 @@ import pytest
 
 from sim_server.physics import LARGE_SWARM_PHYSICS_HZ, LARGE_SWARM_SOLVER_ITERATIONS, PhysicsWorld
 from sim_server.urdf import packaged_urdf_path, render_urdf, write_urdf
-from swarm.robot import (
+from swarm.core.robot import (
     RobotParams,
     controlled_point,
     integrate_unicycle,

@@ -1,4 +1,4 @@
-"""swarm.models and swarm.policy: export, torch-free inference, parity (numpy == torch, robot == batch)."""
+"""swarm.learn.models and swarm.sim.policy: export, torch-free inference, parity (numpy == torch, robot == batch)."""
 
 from __future__ import annotations
 
@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 import torch
 
-from swarm import graphs, metrics
-from swarm.features import FeatureSpec
-from swarm.initial_poses import random_poses
-from swarm.kinematic import KinematicSim
-from swarm.models import MODELS, build_model
-from swarm.policy import Policy, PolicyFormatError, load_policy
-from swarm.robot import RobotParams, rotate
+from swarm.core import graphs, metrics
+from swarm.core.initial_poses import random_poses
+from swarm.core.robot import RobotParams, rotate
+from swarm.learn.models import MODELS, build_model
+from swarm.sim.features import FeatureSpec
+from swarm.sim.kinematic import KinematicSim
+from swarm.sim.policy import Policy, PolicyFormatError, load_policy
 
 ROBOT = RobotParams()
 SPECS = {
@@ -92,8 +92,8 @@ def test_policy_runs_without_torch_in_a_fresh_interpreter(tmp_path):
         f"""
         import sys
         import numpy as np
-        import swarm.policy
-        policy = swarm.policy.load_policy(open({str(path)!r}, "rb").read())
+        import swarm.sim.policy
+        policy = swarm.sim.policy.load_policy(open({str(path)!r}, "rb").read())
         u, message = policy.act_one(np.array([0.1, 0.2, 0.3]), np.ones((2, policy.message_dim)))
         assert u.shape == (2,) and message.shape == (policy.message_dim,)
         heavy = [name for name in ("torch", "numba") if name in sys.modules]

@@ -1,4 +1,4 @@
-"""PPO fine-tuning of the GNN (swarm.train.ppo): a short real training, reproducibility, the export,
+"""PPO fine-tuning of the GNN (swarm.learn.train.ppo): a short real training, reproducibility, the export,
 the batched torch swarm against KinematicSim, the speed limit and decentralized execution."""
 
 from __future__ import annotations
@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 import torch
 
-from swarm import graphs
-from swarm.initial_poses import box_for, random_poses
-from swarm.kinematic import KinematicSim
-from swarm.policy import load_policy
-from swarm.robot import RobotParams, local_point_velocity_to_wheels
-from swarm.train import ppo
+from swarm.core import graphs
+from swarm.core.initial_poses import box_for, random_poses
+from swarm.core.robot import RobotParams, local_point_velocity_to_wheels
+from swarm.learn.train import ppo
+from swarm.sim.kinematic import KinematicSim
+from swarm.sim.policy import load_policy
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_MODEL = ROOT / "models" / "gnn_graph_filter.npz"  # the graph filter PPO fine-tunes
@@ -87,7 +87,7 @@ def test_same_seed_same_training(two_runs):
 
 
 def test_exported_policy_equals_torch_mean_action(two_runs):
-    """``swarm.policy`` (numpy) runs the PPO export exactly as the torch actor's deterministic action."""
+    """``swarm.sim.policy`` (numpy) runs the PPO export exactly as the torch actor's deterministic action."""
     first, _ = two_runs
     actor = actor_for(first, dtype=torch.float32)
     policy = load_policy(first)
@@ -97,7 +97,7 @@ def test_exported_policy_equals_torch_mean_action(two_runs):
     )
     with torch.no_grad():
         torch_mean = actor.mean(torch.as_tensor(features, dtype=torch.float32)).double().numpy()
-    from swarm.features import saturate_local_velocity
+    from swarm.sim.features import saturate_local_velocity
 
     numpy_mean = saturate_local_velocity(policy.forward(features), policy.robot)
     np.testing.assert_allclose(numpy_mean, torch_mean, atol=1e-5)

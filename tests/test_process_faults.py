@@ -21,9 +21,9 @@ import pytest
 import yaml
 from test_runtime import PROJECT_ROOT, Run, agent_records, max_pairwise_of
 
-from swarm import metrics
-from swarm.results import read_trajectory
-from swarm.scenario import load_scenario
+from swarm.core import metrics
+from swarm.scenarios.results import read_trajectory
+from swarm.scenarios.scenario import load_scenario
 
 FAULTS = PROJECT_ROOT / "scenarios" / "faults"
 EVENT_KEYS = {"kind", "robot", "at_s", "tick", "wall_s", "detail"}
@@ -136,7 +136,7 @@ def test_killed_hung_and_restarted_agents(tmp_path):
     live = [i for i in range(8) if i != 3]
     spread = metrics.max_pairwise(poses[:, live, :2])
     assert spread[-1] <= scenario.threshold < spread[0]
-    # metrics.json judges the run on the live robots (swarm.faults) and lists the events.
+    # metrics.json judges the run on the live robots (swarm.core.faults) and lists the events.
     outcome = json.loads((out / "metrics.json").read_text())
     assert outcome["faults"]["events"] == events
     assert outcome["faults"]["agents_lost"] == [3] and outcome["faults"]["agents_restarted"] == [0]
@@ -264,7 +264,7 @@ def test_trajectory_reader_skips_a_torn_last_line(tmp_path):
 BATCHING_WRITER = """
 import os, signal, sys, time
 import numpy as np
-from swarm.results import TrajectoryWriter
+from swarm.scenarios.results import TrajectoryWriter
 flush_every_s, batched = float(sys.argv[2]), int(sys.argv[3])
 writer = TrajectoryWriter(__import__("pathlib").Path(sys.argv[1]), flush_every_s)
 for k in range(batched):

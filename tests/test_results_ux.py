@@ -22,10 +22,10 @@ import pytest
 import yaml
 from test_runtime import max_pairwise_of
 
-from swarm import metrics
-from swarm.procs import free_tcp_port
-from swarm.results import read_trajectory
-from swarm.scenario import ScenarioError, load_scenario, parse_scenario
+from swarm.core import metrics
+from swarm.runtime.procs import free_tcp_port
+from swarm.scenarios.results import read_trajectory
+from swarm.scenarios.scenario import ScenarioError, load_scenario, parse_scenario
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 FAULTS = PROJECT_ROOT / "scenarios" / "faults"
@@ -165,7 +165,7 @@ def test_a_threshold_below_what_the_bodies_allow_is_warned_about(tmp_path, caplo
     data["robot"] = {"body_radius_m": 0.35}
     path = tmp_path / "big.yaml"
     path.write_text(yaml.safe_dump(data))
-    with caplog.at_level("WARNING", logger="swarm.scenario"):
+    with caplog.at_level("WARNING", logger="swarm.scenarios.scenario"):
         load_scenario(path)
     expected = metrics.min_gathered_max_pairwise_m(6, 0.35)
     assert expected > 1.3
@@ -174,7 +174,7 @@ def test_a_threshold_below_what_the_bodies_allow_is_warned_about(tmp_path, caplo
         f" engine (max_pairwise {expected:.3f} m when packed); the run cannot converge there"
     ]
     caplog.clear()
-    with caplog.at_level("WARNING", logger="swarm.scenario"):
+    with caplog.at_level("WARNING", logger="swarm.scenarios.scenario"):
         load_scenario(THESIS / "cycle-local_consensus.yaml")  # 1.3 m for 0.12 m bodies: fine
     assert caplog.records == []
 
@@ -386,7 +386,7 @@ def test_the_animation_greys_dead_robots_dashes_dropped_links_and_zooms_in(tmp_p
     neither; the view of the last frame is the final cluster's size, not the start's."""
     from PIL import Image
 
-    from swarm import report
+    from swarm.scenarios import report
 
     count, ticks, body_m = 6, 20, 0.1
     angles = 2 * np.pi * np.arange(count) / count

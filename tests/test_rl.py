@@ -11,13 +11,13 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 from pettingzoo.test import api_test, parallel_api_test, parallel_seed_test
 
-from swarm import graphs
-from swarm.controllers import LocalConsensus
-from swarm.features import batched_features, saturate_local_velocity
-from swarm.kinematic import KinematicSim
+from swarm.core import graphs
 from swarm.rl import ENV_ID, consensus_v0
 from swarm.rl.consensus_env import ConsensusEnv
 from swarm.rl.vector_env import ConsensusConfig, ConsensusVectorEnv
+from swarm.sim.controllers import LocalConsensus
+from swarm.sim.features import batched_features, saturate_local_velocity
+from swarm.sim.kinematic import KinematicSim
 
 
 @pytest.fixture(autouse=True)

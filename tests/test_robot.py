@@ -1,4 +1,4 @@
-"""Tests for swarm.robot: the differential-drive model of thesis section 2.1 (eq. 2.1-2.4) and the
+"""Tests for swarm.core.robot: the differential-drive model of thesis section 2.1 (eq. 2.1-2.4) and the
 robot frame of eq. 3.2-3.3 (with the transpose the thesis forgot).
 
 Hand-computed cases write their arithmetic in comments; properties use hypothesis.
@@ -13,7 +13,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from swarm.robot import (
+from swarm.core.robot import (
     RobotParams,
     controlled_point,
     integrate_unicycle,

@@ -23,14 +23,14 @@ import pytest
 import yaml
 from PIL import Image
 
-from swarm import wire
-from swarm.controllers import LocalConsensus
-from swarm.distributed import AGENT_NICE
-from swarm.kinematic import KinematicSim
-from swarm.links import Links
-from swarm.results import read_trajectory
-from swarm.robot import controlled_point, point_velocity_to_wheels
-from swarm.scenario import load_scenario
+from swarm.core.robot import controlled_point, point_velocity_to_wheels
+from swarm.runtime import wire
+from swarm.runtime.distributed import AGENT_NICE
+from swarm.scenarios.results import read_trajectory
+from swarm.scenarios.scenario import load_scenario
+from swarm.sim.controllers import LocalConsensus
+from swarm.sim.kinematic import KinematicSim
+from swarm.sim.links import Links
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 THESIS = PROJECT_ROOT / "scenarios" / "thesis"
@@ -120,7 +120,7 @@ class Run:
 
 
 def max_pairwise_of(poses: np.ndarray) -> np.ndarray:
-    """Largest distance between two robots at each tick, computed here (not by swarm.metrics)."""
+    """Largest distance between two robots at each tick, computed here (not by swarm.core.metrics)."""
     xy = poses[..., :2]
     return np.array([max(np.hypot(*(a - b)) for a in frame for b in frame) for frame in xy])
 
@@ -134,7 +134,7 @@ def assert_commands_equal_batched_policy(out: Path, scenario_path: Path, model: 
     own previous outbox as everybody's inbox: every agent heard all its neighbours last tick) and
     assert that every applied wheel command equals it to 1e-9; returns the applied commands
     ``(T, N, 2)``."""
-    from swarm.policy import load_policy
+    from swarm.sim.policy import load_policy
 
     scenario = load_scenario(scenario_path)
     lines = [json.loads(line) for line in (out / "trajectory.jsonl").read_text().splitlines()]
@@ -357,7 +357,7 @@ def test_a_policy_file_runs_in_the_agents_with_the_kinematic_engines_timing(tmp_
     """The GNN path: the sim serves the policy file, each agent runs it with numpy (no torch), and
     every command equals what the batched policy of the kinematic engine computes, tick by tick,
     from the same poses and last tick's messages."""
-    from swarm.policy import save_policy
+    from swarm.sim.policy import save_policy
 
     rng = np.random.default_rng(0)
     metadata = {

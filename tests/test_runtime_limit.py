@@ -15,7 +15,7 @@ import bare_agent
 import runtime_limit
 import yaml
 
-from swarm.results import read_trajectory
+from swarm.scenarios.results import read_trajectory
 
 
 @pytest.mark.parametrize("role", ["stand-in", "answer"])
@@ -31,7 +31,7 @@ def test_stand_in_agents_drive_a_real_lockstep_run_to_the_end(tmp_path: Path, ro
     assert "error" not in result, result
     stats = json.loads((out / "server_stats.json").read_text())
     # the server waited for their tokens and got, every tick, every agent's command of that tick,
-    # each decoded by the real decoder (swarm.wire.decode_command in the server)
+    # each decoded by the real decoder (swarm.runtime.wire.decode_command in the server)
     assert stats["exit"] == "done"
     assert sorted(e["robot"] for e in stats["agent_events"] if e["event"] == "alive") == list(range(count))
     assert stats["ticks_served"] == stats["ticks"] == steps

@@ -1,4 +1,4 @@
-"""Tests for swarm.scenario: the YAML schema, one-line errors naming file, key and reason, the resolved
+"""Tests for swarm.scenarios.scenario: the YAML schema, one-line errors naming file, key and reason, the resolved
 scenario round trip, reproducible initial poses and graphs.
 
 ``BAD_SCENARIOS`` is shared with tests/test_cli.py, which checks the same files through ``swarm run``.
@@ -18,8 +18,8 @@ import yaml
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from swarm import graphs
-from swarm.scenario import (
+from swarm.core import graphs
+from swarm.scenarios.scenario import (
     Scenario,
     ScenarioError,
     dump_scenario,

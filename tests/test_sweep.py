@@ -7,12 +7,12 @@ import csv
 import numpy as np
 import pytest
 
-from swarm import graphs, metrics
 from swarm.cli import main
-from swarm.controllers import LocalConsensus
-from swarm.kinematic import KinematicSim
-from swarm.robot import RobotParams
-from swarm.sweep import SweepConfig, connecting_radius, converge_batch, run_cell, summarize_cell
+from swarm.core import graphs, metrics
+from swarm.core.robot import RobotParams
+from swarm.scenarios.sweep import SweepConfig, connecting_radius, converge_batch, run_cell, summarize_cell
+from swarm.sim.controllers import LocalConsensus
+from swarm.sim.kinematic import KinematicSim
 
 
 @pytest.mark.parametrize("topology", ["complete", "cycle", "line", "star", "random", "disk"])

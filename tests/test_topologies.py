@@ -1,17 +1,17 @@
-"""The topology registry (``swarm.topologies``) is the one place a graph kind is defined: a kind
+"""The topology registry (``swarm.core.topologies``) is the one place a graph kind is defined: a kind
 registered there is accepted by the scenario schema, sweeps, data collection and the RL
-environment, and the built-in kinds build exactly the graphs of ``swarm.graphs``."""
+environment, and the built-in kinds build exactly the graphs of ``swarm.core.graphs``."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from swarm import graphs, topologies
-from swarm.data import collect_config, episode_graphs
+from swarm.core import graphs, topologies
+from swarm.learn.data import collect_config, episode_graphs
 from swarm.rl.vector_env import ConsensusConfig, ConsensusVectorEnv
-from swarm.scenario import ScenarioError, parse_scenario
-from swarm.sweep import SweepConfig, cell_graphs
+from swarm.scenarios.scenario import ScenarioError, parse_scenario
+from swarm.scenarios.sweep import SweepConfig, cell_graphs
 
 
 def scenario(topology: dict, count: int = 6):

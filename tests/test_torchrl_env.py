@@ -19,10 +19,10 @@ from tensordict.nn import TensorDictModule
 from torchrl.collectors import Collector
 from torchrl.envs.utils import RandomPolicy, check_env_specs
 
-from swarm import metrics
-from swarm.policy import load_policy
+from swarm.core import metrics
+from swarm.learn.train import ppo
 from swarm.rl.torchrl_env import SwarmTorchRLEnv
-from swarm.train import ppo
+from swarm.sim.policy import load_policy
 
 ROOT = Path(__file__).resolve().parent.parent
 # PPO fine-tunes the gated graph filter (the default before the flooding GNN), as `swarm train --algo ppo`.
@@ -35,7 +35,7 @@ def make_env(**overrides) -> SwarmTorchRLEnv:
 
 
 def gnn_policy(env: SwarmTorchRLEnv) -> TensorDictModule:
-    """The BC GNN's deterministic action, as ``swarm.policy`` runs it."""
+    """The BC GNN's deterministic action, as ``swarm.sim.policy`` runs it."""
     robot = env.robot
     actor = ppo.Actor(ppo.load_gnn(env.config, robot), robot, 0.05, False, "velocity")
     return TensorDictModule(

@@ -1,4 +1,4 @@
-"""Tests for swarm.wire: key expressions, message round trips, and rejection of malformed input
+"""Tests for swarm.runtime.wire: key expressions, message round trips, and rejection of malformed input
 (decoding returns None, never raises)."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from swarm import wire
+from swarm.runtime import wire
 
 finite = st.floats(min_value=-1e4, max_value=1e4, allow_nan=False, allow_infinity=False)
 ticks = st.integers(min_value=0, max_value=wire.MAX_TICK)
@@ -344,7 +344,7 @@ def test_guarded_callbacks_count_errors_and_never_raise(caplog):
     for sample in ["ok", "bad", "ok", *["bad"] * 10]:
         guarded(sample)  # never raises
     assert len(seen) == 13 and stats["callback_errors"] == 11
-    records = [record for record in caplog.records if record.name == "swarm.wire"]
+    records = [record for record in caplog.records if record.name == "swarm.runtime.wire"]
     assert len(records) == wire.CALLBACK_ERRORS_PRINTED  # the first few, one line each, as errors
     assert {record.levelname for record in records} == {"ERROR"}
     assert records[0].getMessage() == "test: callback error: KeyError: 'no such field'"

@@ -37,11 +37,11 @@ from stable_baselines3.common.callbacks import BaseCallback, CallbackList, Check
 from stable_baselines3.common.logger import configure
 from stable_baselines3.common.monitor import Monitor
 
-from swarm.features import saturate_local_velocity
+from swarm.learn.train import preset_with_overrides
 from swarm.rl import ENV_ID
 from swarm.rl.consensus_env import make_thesis_vector_env, thesis_config
 from swarm.rl.vector_env import DISCRETE_ACTIONS
-from swarm.train import preset_with_overrides
+from swarm.sim.features import saturate_local_velocity
 
 
 @dataclass(frozen=True)

@@ -1,11 +1,11 @@
 """The batched torch swarm of ``swarm train --algo ppo`` as a TorchRL multi-agent environment.
 
-``SwarmTorchRLEnv`` wraps ``swarm.train.ppo.TorchSwarm`` (B swarms of up to ``n_max`` robots,
+``SwarmTorchRLEnv`` wraps ``swarm.learn.train.ppo.TorchSwarm`` (B swarms of up to ``n_max`` robots,
 padded, stepped together) in ``torchrl.envs.EnvBase`` with batch size ``[B]`` and one agent group
 ``"agents"`` of shape ``[B, n_max]`` (TorchRL's multi-agent layout, as in its MAPPO/IPPO
 tutorials), so TorchRL's collectors, GAE and ``ClipPPOLoss`` train the same task as the
 hand-written loop. Everything task-side is that loop's: the episodes (``EpisodeSampler``: graph
-kind, N, start poses), the robot-frame GNN features (the timing of ``swarm.kinematic``: hop-h
+kind, N, start poses), the robot-frame GNN features (the timing of ``swarm.sim.kinematic``: hop-h
 information is h ticks old), the saturation and the reward, shared by all robots, per tick of
 ``dt`` seconds::
 
@@ -20,7 +20,7 @@ Keys (``B`` swarms, ``N = n_max``, ``K`` hops):
 - ``("agents", "observation")`` ``(B, N, K, 2)``: each robot's features (the policy's input);
 - ``("agents", "mask")`` ``(B, N)``: the robot exists;
 - ``("agents", "critic_robots")`` ``(B, N, D)`` and ``"critic_summary"`` ``(B, G)``: the centralized
-  critic's inputs (``swarm.train.ppo.critic_inputs``), used only in training;
+  critic's inputs (``swarm.learn.train.ppo.critic_inputs``), used only in training;
 - ``("agents", "action")`` ``(B, N, 2)``: robot-frame point velocity (m/s), saturated on applying;
 - ``"reward"`` ``(B, 1)`` (team reward), ``"done"``/``"terminated"``/``"truncated"`` ``(B, 1)``.
 
@@ -35,8 +35,8 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-from swarm.robot import RobotParams
-from swarm.train.ppo import Critic, EpisodeSampler, PPOConfig, TorchSwarm, critic_inputs
+from swarm.core.robot import RobotParams
+from swarm.learn.train.ppo import Critic, EpisodeSampler, PPOConfig, TorchSwarm, critic_inputs
 
 AGENTS = "agents"
 

@@ -6,14 +6,14 @@ and out, auto-reset, for fast on-policy training), the thesis's single-agent Gym
 (``swarm.rl.consensus_v0``, one environment whose every robot is an agent). Thesis appendices C-D,
 with its errors fixed (docs/design.md).
 
-Episode. N robots start uniformly at random in the box ``swarm.initial_poses.box_for(N)`` (4 m x 4 m
+Episode. N robots start uniformly at random in the box ``swarm.core.initial_poses.box_for(N)`` (4 m x 4 m
 for the thesis's 6) with a minimum separation and uniform headings, on the ``topology`` graph
 (``random``: a connected G(N, p) redrawn every episode). Learning robots apply their action; the
 others (``learners="first"``: robots 1..N-1) run ``others``: local consensus on the graph (eq. 3.1
-with last tick's neighbour points, ``swarm.controllers.LocalConsensus``) or the centralized expert.
+with last tick's neighbour points, ``swarm.sim.controllers.LocalConsensus``) or the centralized expert.
 Same robot model, saturation and integration as every engine (``KinematicSim`` kernels).
 
-Information timing (docs/design.md). At tick k robot i observes what ``swarm.features`` computes from its
+Information timing (docs/design.md). At tick k robot i observes what ``swarm.sim.features`` computes from its
 own pose at tick k and the messages ``[p_j, M_j]`` its neighbours broadcast at tick k-1, in its own
 frame (``frame="robot"``): ``[Mx, My, Phix, Phiy]`` for K = ``hops`` = 2 (thesis appendix C), ``2K``
 numbers in general. On an episode's first tick nobody has heard anybody: the observation is zero
@@ -25,7 +25,7 @@ Actions of a learning robot, in its own frame (x forward, y left; ``frame="world
 - ``continuous``: ``a`` in ``[-1, 1]^2``, wished point velocity ``v_max a``;
 - ``discrete`` (thesis, "up/down/left/right"): 0 forward, 1 backward, 2 left, 3 right, times ``v_max``.
 
-The wish is saturated as every controller's is (``swarm.features.saturate_local_velocity``: one
+The wish is saturated as every controller's is (``swarm.sim.features.saturate_local_velocity``: one
 factor on both wheels, ``|ux| + (d/l)|uy| <= v_max``; sideways the point moves at most
 ``v_max l/d``) and held for ``action_repeat`` control ticks (the decision period ``dt``).
 
@@ -48,14 +48,15 @@ from typing import Literal
 import numpy as np
 from gymnasium import spaces
 
-from swarm import kernels, topologies
-from swarm.experts import complete_consensus_velocity
-from swarm.features import FeatureSpec, batched_features, messages, saturate_local_velocity
-from swarm.initial_poses import box_for, random_poses
-from swarm.kinematic import KinematicSim
-from swarm.links import Links
-from swarm.metrics import max_pairwise
-from swarm.robot import RobotParams, controlled_point, rotate
+from swarm.core import topologies
+from swarm.core.experts import complete_consensus_velocity
+from swarm.core.initial_poses import box_for, random_poses
+from swarm.core.metrics import max_pairwise
+from swarm.core.robot import RobotParams, controlled_point, rotate
+from swarm.sim import kernels
+from swarm.sim.features import FeatureSpec, batched_features, messages, saturate_local_velocity
+from swarm.sim.kinematic import KinematicSim
+from swarm.sim.links import Links
 
 # Discrete actions: unit point velocities (forward "up", backward "down", left, right) in the action frame.
 DISCRETE_ACTIONS = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
@@ -111,7 +112,7 @@ class ConsensusConfig:
 
     @property
     def robot(self) -> RobotParams:
-        """BubbleRob-like defaults (``swarm.robot``) with this task's wheel-speed limit."""
+        """BubbleRob-like defaults (``swarm.core.robot``) with this task's wheel-speed limit."""
         return RobotParams(v_max_mps=self.v_max_mps)
 
     @property
@@ -144,8 +145,8 @@ def action_space(config: ConsensusConfig) -> spaces.Space:
 
 
 class _MixedController:
-    """Batched controller (``swarm.controllers`` protocol): learners apply the wish set in ``wish``,
-    the others the expert; everyone broadcasts ``[p, Phi1..Phi(K-1)]`` (``swarm.features.messages``)."""
+    """Batched controller (``swarm.sim.controllers`` protocol): learners apply the wish set in ``wish``,
+    the others the expert; everyone broadcasts ``[p, Phi1..Phi(K-1)]`` (``swarm.sim.features.messages``)."""
 
     centralized = False
 

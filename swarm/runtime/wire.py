@@ -1,0 +1,463 @@
+"""Zenoh key expressions and message schemas of the runtime (docs/design.md, "The wire protocol").
+
+The one place that knows what travels on the wire. Key space of one run (``<run>`` is the run id)::
+
+    swarm/<run>/robot/<i>/pose     sim -> agent i          Pose: tick, sim time, x, y, theta (axle centre)
+    swarm/<run>/robot/<i>/cmd      agent i -> sim          Command: tick, wheel linear speeds left/right (m/s)
+    swarm/<run>/agent/<i>/msg      agent i -> neighbours   AgentMessage: tick, message vector
+    swarm/<run>/config/<i>         queryable of the sim    AgentConfig of robot i (scenario, graph, policy);
+                                                           an agent without a run id asks swarm/*/config/<i>
+    swarm/<run>/alive/sim          liveliness token of the sim server
+    swarm/<run>/alive/agent/<i>    liveliness token of robot i's controller
+    swarm/<run>/fault/...          runner -> everyone: injected faults (reserved)
+
+Payloads are msgpack maps carrying ``"v": SCHEMA_VERSION``. Every ``decode_*`` validates
+the schema version, types, finiteness and magnitudes (and, for a message, its length) and returns
+``None`` for anything malformed (the caller counts it as invalid and drops it); decoding never
+raises. Ticks must also advance: a receiver drops and counts as *old* a pose, message or command
+whose tick is not newer than the newest it accepted from that sender (a replay or a reordered
+sample), and as *future* one dated beyond what its own clock allows (:mod:`swarm.runtime.ticks`). Zenoh
+callbacks are wrapped in :func:`guarded`, so that no exception reaches Zenoh.
+
+Importable without torch, pybullet or numba: robot agents use it.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import re
+import struct
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, cast
+
+import msgpack
+import numpy as np
+
+SCHEMA_VERSION = 1
+ROOT = "swarm"
+
+MAX_TICK = 2**40
+MAX_TIME_S = 1e9
+MAX_COORD_M = 1e5
+MAX_ANGLE_RAD = 4 * math.pi
+MAX_WHEEL_MPS = 100.0
+MAX_MESSAGE_DIM = 1024
+MAX_MESSAGE_ABS = 1e9
+MAX_ROBOTS = 100_000
+MAX_SMALL_PAYLOAD = 1024
+MAX_MESSAGE_PAYLOAD = 64 + 8 * MAX_MESSAGE_DIM
+MAX_CONFIG_PAYLOAD = 256 * 2**20
+
+CALLBACK_ERRORS_PRINTED = 5
+"""Callback errors logged per process (all are counted)."""
+
+log = logging.getLogger(__name__)
+
+_RUN_ID = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
+
+
+def check_run_id(run: str) -> str:
+    """A run id is one key chunk: letters, digits, ``_ . -`` (no ``/``, wildcards or ``$``)."""
+    if not isinstance(run, str) or not _RUN_ID.match(run):
+        raise ValueError(f"run id must match {_RUN_ID.pattern}, got {run!r}")
+    return run
+
+
+class Keys:
+    """Key expressions of one run."""
+
+    def __init__(self, run: str):
+        self.run = check_run_id(run)
+        self.prefix = f"{ROOT}/{run}"
+
+    def pose(self, robot: int) -> str:
+        return f"{self.prefix}/robot/{int(robot)}/pose"
+
+    def cmd(self, robot: int) -> str:
+        return f"{self.prefix}/robot/{int(robot)}/cmd"
+
+    def msg(self, robot: int) -> str:
+        return f"{self.prefix}/agent/{int(robot)}/msg"
+
+    def config(self, robot: int) -> str:
+        return f"{self.prefix}/config/{int(robot)}"
+
+    def alive_agent(self, robot: int) -> str:
+        return f"{self.prefix}/alive/agent/{int(robot)}"
+
+    @property
+    def alive_sim(self) -> str:
+        return f"{self.prefix}/alive/sim"
+
+    # Wildcards: for the sim server and the centralized controller only, never for an agent.
+    @property
+    def all_poses(self) -> str:
+        return f"{self.prefix}/robot/*/pose"
+
+    @property
+    def all_cmds(self) -> str:
+        return f"{self.prefix}/robot/*/cmd"
+
+    @property
+    def all_configs(self) -> str:
+        return f"{self.prefix}/config/*"
+
+    @property
+    def all_alive_agents(self) -> str:
+        return f"{self.prefix}/alive/agent/*"
+
+    @property
+    def faults(self) -> str:
+        return f"{self.prefix}/fault/**"
+
+    @staticmethod
+    def any_run_config(robot: int) -> str:
+        """Robot ``robot``'s configuration in whichever run serves it (run-id discovery)."""
+        return f"{ROOT}/*/config/{int(robot)}"
+
+    @staticmethod
+    def run_of_config(key: str) -> str | None:
+        """The run id in a concrete ``swarm/<run>/config/<i>`` key, or None."""
+        parts = str(key).split("/")
+        if len(parts) != 4 or parts[0] != ROOT or parts[2] != "config" or not parts[3].isdigit():
+            return None
+        return parts[1] if _RUN_ID.match(parts[1]) else None
+
+    def robot_of(self, key: str, kind: str) -> int | None:
+        """Robot index in a concrete key of ``kind`` (``pose``, ``cmd``, ``msg``, ``config``, ``alive``),
+        or None when the key is not of that shape."""
+        patterns = {
+            "pose": (f"{self.prefix}/robot/", "/pose"),
+            "cmd": (f"{self.prefix}/robot/", "/cmd"),
+            "msg": (f"{self.prefix}/agent/", "/msg"),
+            "config": (f"{self.prefix}/config/", ""),
+            "alive": (f"{self.prefix}/alive/agent/", ""),
+        }
+        head, tail = patterns[kind]
+        key = str(key)
+        if not (key.startswith(head) and key.endswith(tail)):
+            return None
+        middle = key[len(head) : len(key) - len(tail)]
+        if not middle.isdigit() or len(middle) > 6:
+            return None
+        return int(middle)
+
+
+# ----------------------------------------------------------------------------- schemas
+
+
+@dataclass(frozen=True)
+class Pose:
+    """Axle-centre pose of one robot at a control tick (sim -> agent)."""
+
+    tick: int
+    time_s: float
+    x_m: float
+    y_m: float
+    theta_rad: float
+
+    def array(self) -> np.ndarray:
+        return np.array([self.x_m, self.y_m, self.theta_rad])
+
+
+@dataclass(frozen=True)
+class Command:
+    """Wheel linear speeds (m/s) a robot's controller wants for a tick (agent -> sim)."""
+
+    tick: int
+    left_mps: float
+    right_mps: float
+
+
+@dataclass(frozen=True)
+class AgentMessage:
+    """What a robot broadcasts to its graph neighbours at a tick (its controlled point first for
+    local consensus; the GNN message for a learned policy)."""
+
+    tick: int
+    values: np.ndarray = field(compare=False)
+
+
+@dataclass(frozen=True)
+class AgentConfig:
+    """Everything a robot agent needs that is not on its command line, served by the sim."""
+
+    run: str
+    robot: int
+    robot_count: int
+    controller: str
+    gain: float
+    robot_params: dict[str, float]
+    neighbours: tuple[int, ...]
+    weights: tuple[float, ...]
+    mode: str
+    control_period_s: float
+    neighbour_deadline_s: float
+    scenario: dict[str, Any]
+    policy: bytes | None = None
+
+
+def _pack(body: dict[str, Any]) -> bytes:
+    return msgpack.packb({"v": SCHEMA_VERSION, **body}, use_bin_type=True)
+
+
+def _unpack(data: bytes | bytearray | memoryview, limit: int) -> dict | None:
+    try:
+        if len(data) > limit:
+            return None
+        body = msgpack.unpackb(
+            bytes(data),
+            raw=False,
+            strict_map_key=True,
+            max_str_len=limit,
+            max_bin_len=limit,
+            max_array_len=MAX_ROBOTS,
+            max_map_len=1024,
+        )
+    except Exception:  # any malformed input: msgpack raises many kinds
+        return None
+    if not isinstance(body, dict) or body.get("v") != SCHEMA_VERSION:
+        return None
+    return body
+
+
+def _int(value: Any, low: int, high: int) -> int | None:
+    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+        return None
+    return value
+
+
+def _float(value: Any, bound: float) -> float | None:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    value = float(value)
+    if not math.isfinite(value) or abs(value) > bound:
+        return None
+    return value
+
+
+def _floats(body: dict, bounds: dict[str, float]) -> list[float] | None:
+    values = [_float(body.get(key), bound) for key, bound in bounds.items()]
+    return None if any(value is None for value in values) else cast("list[float]", values)
+
+
+def encode_pose(tick: int, time_s: float, pose: Sequence[float]) -> bytes:
+    x, y, theta = (float(value) for value in pose)
+    return _pack({"k": int(tick), "t": float(time_s), "x": x, "y": y, "th": theta})
+
+
+class PoseEncoder:
+    """Pose payloads of ``count`` robots packed each tick into buffers allocated once.
+
+    The bytes are the msgpack map of :func:`encode_pose` with a fixed layout: the tick always as a
+    uint 64 (``0xcf``) and every float as a float 64 (``0xcb``), so one ``struct.pack_into`` per
+    robot fills its buffer (msgpack readers accept a uint 64 for any tick). 60 bytes per pose.
+    """
+
+    _LAYOUT = struct.Struct(">7sQ3sd3sd3sd4sd")
+    _PARTS = (
+        bytes.fromhex("86a17601a16bcf"),  # map of 6, "v": 1, "k": uint 64 follows
+        bytes.fromhex("a174cb"),  # "t": float 64
+        bytes.fromhex("a178cb"),  # "x"
+        bytes.fromhex("a179cb"),  # "y"
+        bytes.fromhex("a27468cb"),  # "th"
+    )
+
+    def __init__(self, count: int):
+        self.buffers = [bytearray(self._LAYOUT.size) for _ in range(count)]
+
+    def encode(self, tick: int, time_s: float, poses: Sequence[Sequence[float]]) -> list[bytearray]:
+        """Fill robot i's buffer with its pose of ``tick``; returns the buffers (reused next tick)."""
+        pack, (p0, p1, p2, p3, p4) = self._LAYOUT.pack_into, self._PARTS
+        tick, time_s = int(tick), float(time_s)
+        for buffer, (x, y, theta) in zip(self.buffers, poses, strict=True):
+            pack(buffer, 0, p0, tick, p1, time_s, p2, x, p3, y, p4, theta)
+        return self.buffers
+
+
+def decode_pose(data: bytes) -> Pose | None:
+    body = _unpack(data, MAX_SMALL_PAYLOAD)
+    if body is None:
+        return None
+    tick = _int(body.get("k"), 0, MAX_TICK)
+    values = _floats(body, {"t": MAX_TIME_S, "x": MAX_COORD_M, "y": MAX_COORD_M, "th": MAX_ANGLE_RAD})
+    if tick is None or values is None or values[0] < 0:
+        return None
+    return Pose(tick, *values)
+
+
+def encode_command(tick: int, wheels_mps: Sequence[float]) -> bytes:
+    left, right = (float(value) for value in wheels_mps)
+    return _pack({"k": int(tick), "l": left, "r": right})
+
+
+def decode_command(data: bytes) -> Command | None:
+    body = _unpack(data, MAX_SMALL_PAYLOAD)
+    if body is None:
+        return None
+    tick = _int(body.get("k"), 0, MAX_TICK)
+    values = _floats(body, {"l": MAX_WHEEL_MPS, "r": MAX_WHEEL_MPS})
+    if tick is None or values is None:
+        return None
+    return Command(tick, *values)
+
+
+SHORT_MESSAGE_DIM = 64
+"""Message vectors up to this length are packed and checked as plain floats (numpy costs more)."""
+
+
+def encode_message(tick: int, values: np.ndarray | Sequence[float]) -> bytes:
+    """The message vector travels as little-endian float64 bytes."""
+    if isinstance(values, tuple | list) and len(values) <= SHORT_MESSAGE_DIM:
+        raw = struct.pack(f"<{len(values)}d", *values)
+    else:
+        raw = np.ascontiguousarray(values, dtype="<f8").reshape(-1).tobytes()
+    return _pack({"k": int(tick), "m": raw})
+
+
+def decode_message_values(data: bytes, dim: int | None = None) -> tuple[int, Sequence[float]] | None:
+    """``(tick, values)`` of a message, values a tuple of floats for short vectors (else an array);
+    None when malformed or, with ``dim``, of another length."""
+    body = _unpack(data, MAX_MESSAGE_PAYLOAD)
+    if body is None:
+        return None
+    tick = _int(body.get("k"), 0, MAX_TICK)
+    raw = body.get("m")
+    if tick is None or not isinstance(raw, bytes) or len(raw) % 8 or len(raw) > 8 * MAX_MESSAGE_DIM:
+        return None
+    size = len(raw) // 8
+    if dim is not None and size != dim:
+        return None
+    if size <= SHORT_MESSAGE_DIM:
+        floats = struct.unpack(f"<{size}d", raw)
+        if not all(abs(value) <= MAX_MESSAGE_ABS for value in floats):
+            return None  # NaN fails the comparison too
+        return tick, floats
+    values: Any = np.frombuffer(raw, dtype="<f8").astype(np.float64)
+    if not np.all(np.abs(values) <= MAX_MESSAGE_ABS):
+        return None
+    return tick, values
+
+
+def decode_message(data: bytes, dim: int | None = None) -> AgentMessage | None:
+    """Also rejects a vector whose length is not ``dim`` when ``dim`` is given."""
+    decoded = decode_message_values(data, dim)
+    if decoded is None:
+        return None
+    return AgentMessage(decoded[0], np.asarray(decoded[1], dtype=np.float64))
+
+
+def encode_config(config: AgentConfig) -> bytes:
+    body = {key: getattr(config, key) for key in AgentConfig.__dataclass_fields__}
+    body["neighbours"] = list(config.neighbours)
+    body["weights"] = list(config.weights)
+    return _pack(body)
+
+
+def decode_config(data: bytes) -> AgentConfig | None:
+    body = _unpack(data, MAX_CONFIG_PAYLOAD)
+    if body is None:
+        return None
+    try:
+        count = _int(body["robot_count"], 1, MAX_ROBOTS)
+        robot = _int(body["robot"], 0, MAX_ROBOTS - 1)
+        neighbours = tuple(body["neighbours"])
+        weights = tuple(_float(w, MAX_MESSAGE_ABS) for w in body["weights"])
+        numbers = _floats(body, {"gain": MAX_MESSAGE_ABS, "control_period_s": 3600.0})
+        deadline = _float(body["neighbour_deadline_s"], 3600.0)
+        params = body["robot_params"]
+        checks = [
+            count is not None and robot is not None and robot < count,
+            all(_int(j, 0, (count or 1) - 1) is not None and j != robot for j in neighbours),
+            len(set(neighbours)) == len(neighbours) == len(weights),
+            None not in weights and numbers is not None and numbers[1] > 0,
+            deadline is not None and deadline >= 0,
+            isinstance(params, dict) and all(_float(v, 1e6) is not None for v in params.values()),
+            isinstance(body["run"], str) and isinstance(body["controller"], str),
+            isinstance(body["mode"], str) and isinstance(body["scenario"], dict),
+            body.get("policy") is None or isinstance(body["policy"], bytes),
+        ]
+        if not all(checks):
+            return None
+        assert count is not None and robot is not None and numbers is not None and deadline is not None
+        return AgentConfig(
+            run=body["run"],
+            robot=robot,
+            robot_count=count,
+            controller=body["controller"],
+            gain=numbers[0],
+            robot_params=dict(params),
+            neighbours=neighbours,
+            weights=cast("tuple[float, ...]", weights),
+            mode=body["mode"],
+            control_period_s=numbers[1],
+            neighbour_deadline_s=deadline,
+            scenario=body["scenario"],
+            policy=body.get("policy"),
+        )
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
+# ----------------------------------------------------------------------------- sessions
+
+
+def session_config(
+    mode: str = "peer",
+    connect: Sequence[str] = (),
+    listen: Sequence[str] = (),
+    lease_ms: int = 1000,
+    settings: Mapping[str, Any] | None = None,
+) -> Any:
+    """A ``zenoh.Config``: explicit endpoints, multicast scouting off, a short lease.
+
+    ``lease_ms`` bounds how long a frozen (not crashed) process keeps its liveliness tokens
+    (NOTES-measured: ~1 s with 1000 ms; a killed process is noticed in milliseconds). ``settings``
+    maps more configuration paths to JSON values (``swarm.runtime.acl``: authentication, access control).
+    """
+    import zenoh
+
+    if mode not in ("peer", "client", "router"):
+        raise ValueError(f"zenoh mode must be peer, client or router, got {mode!r}")
+    config = zenoh.Config()
+    config.insert_json5("mode", json.dumps(mode))
+    config.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    config.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    config.insert_json5("scouting/multicast/enabled", "false")
+    config.insert_json5("transport/link/tx/lease", str(int(lease_ms)))
+    for path, value in (settings or {}).items():
+        config.insert_json5(path, json.dumps(value))
+    return config
+
+
+def guarded(callback: Callable[[Any], None], stats: dict[str, Any], name: str) -> Callable[[Any], None]:
+    """``callback`` for a Zenoh subscriber or queryable that never raises into Zenoh: an exception is
+    counted in ``stats["callback_errors"]`` and its first lines are logged as errors, one line each (Zenoh
+    would print a traceback per sample and carry on; the count makes it visible in the results)."""
+
+    def run(sample: Any) -> None:
+        try:
+            callback(sample)
+        except Exception as error:  # a bug or a sample no decoder foresaw: never the process's end
+            stats["callback_errors"] = stats.get("callback_errors", 0) + 1
+            if stats["callback_errors"] <= CALLBACK_ERRORS_PRINTED:
+                log.error("%s: callback error: %s: %s", name, type(error).__name__, error)
+
+    return run
+
+
+def publisher_options(mode: str) -> dict[str, Any]:
+    """Keyword arguments of ``declare_publisher`` for the pose, command and message streams.
+
+    ``lockstep`` needs every sample delivered (a dropped pose or command is a missed tick), so it
+    blocks on congestion; a stalled reader is bounded by the deadlines and the lease. ``realtime``
+    streams latest values, so it drops (NOTES-measured: BLOCK stalled ``put`` for seconds behind a
+    slow reader). Both skip batching (``express``) for latency.
+    """
+    import zenoh
+
+    congestion = zenoh.CongestionControl.BLOCK if mode == "lockstep" else zenoh.CongestionControl.DROP
+    return {"congestion_control": congestion, "express": True}

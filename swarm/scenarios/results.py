@@ -1,0 +1,306 @@
+"""The results directory of a run (docs/design.md, "Results") and the outcome written to metrics.json.
+
+Layout::
+
+    scenario.yaml       the resolved scenario, every default filled in
+    trajectory.jsonl    one line per tick, written as it happens (the sim server batches 0.1 s):
+                        {"tick", "time_s", "poses": [[x, y, theta], ...]}
+    metrics.json        the outcome (see ``summarize``); ``partial`` when the run did not complete
+    convergence.png     the metric over time (``convergence.png.json``: what it shows, swarm.scenarios.report)
+    animation.gif       the robots and their graph edges
+    recording.mcap      on request (swarm.scenarios.recording; recording.rrd for rerun)
+    logs/               one log per process
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from swarm.core import graphs, metrics
+from swarm.scenarios.report import write_pictures
+from swarm.scenarios.scenario import Scenario, dump_scenario
+
+
+class TrajectoryWriter:
+    """Streams poses to ``trajectory.jsonl``, one complete line per tick.
+
+    ``flush_every_s`` 0 (default): every line is flushed as it is written, so a crash loses at most
+    the line being written. Above 0 the lines are batched in memory and written in one ``write``
+    once the oldest unwritten line is that old (wall clock; and at :meth:`flush` / close): a killed
+    writer leaves every line up to the last batch (a torn last line is skipped by the readers), and
+    saves a system call per tick.
+    """
+
+    def __init__(self, path: Path, flush_every_s: float = 0.0):
+        self.path = path
+        self.flush_every_s = float(flush_every_s)
+        self._file = open(path, "w")  # noqa: SIM115 (closed by close/__exit__)
+        self._pending: list[str] = []
+        self._oldest_s = 0.0
+
+    def write(self, tick: int, time_s: float, poses: np.ndarray, **extra: object) -> None:
+        record = {"tick": int(tick), "time_s": round(float(time_s), 9), "poses": np.asarray(poses).tolist()}
+        record.update(extra)
+        if not self._pending:
+            self._oldest_s = time.perf_counter()
+        self._pending.append(json.dumps(record, separators=(",", ":")) + "\n")
+        if self.flush_every_s <= 0 or time.perf_counter() - self._oldest_s >= self.flush_every_s:
+            self.flush()
+
+    def flush(self) -> None:
+        """Write every batched line and hand them to the OS."""
+        if self._pending:
+            self._file.write("".join(self._pending))
+            self._pending.clear()
+        self._file.flush()
+
+    def close(self) -> None:
+        self.flush()
+        self._file.close()
+
+    def __enter__(self) -> TrajectoryWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def prepare_results_dir(out_dir: Path, scenario: Scenario) -> Path:
+    """Create the directory (and logs/) and write the resolved scenario."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "logs").mkdir(exist_ok=True)
+    (out_dir / "scenario.yaml").write_text(dump_scenario(scenario))
+    return out_dir
+
+
+def read_jsonl(path: Path) -> list[dict]:
+    """The records of a JSON-lines file written as it happened: a torn last line (the writer was
+    killed mid-line) and everything after it are skipped."""
+    records = []
+    with open(path, errors="replace") as file:
+        for line in file:
+            try:
+                record = json.loads(line)
+            except json.JSONDecodeError:
+                break
+            if not isinstance(record, dict):
+                break
+            records.append(record)
+    return records
+
+
+def read_trajectory(path: Path) -> tuple[np.ndarray, np.ndarray, list[dict]]:
+    """Times ``(T,)`` and poses ``(T, N, 3)`` from a trajectory file; a torn last line is skipped."""
+    records = [r for r in read_jsonl(path) if "time_s" in r and "poses" in r]
+    times = np.array([record["time_s"] for record in records], dtype=float)
+    poses = np.array([record["poses"] for record in records], dtype=float)
+    if not records:
+        poses = poses.reshape(0, 0, 3)
+    return times, poses, records
+
+
+def _none_if_nan(value: float | np.ndarray | None) -> float | None:
+    return None if value is None or math.isnan(value) else float(value)
+
+
+def summarize(
+    scenario: Scenario,
+    times_s: np.ndarray,
+    poses: np.ndarray,
+    final_adjacency: np.ndarray,
+) -> dict:
+    """Outcome of a run from its trajectory: global consensus, per-component consensus and the
+    lower bound of docs/design.md ("Metrics and the lower bound") for the ``max_pairwise`` metric."""
+    metric, threshold = scenario.success.metric, scenario.threshold
+    positions = poses[..., :2]
+    values = metrics.METRICS[metric](positions)
+    convergence_time_s = _none_if_nan(metrics.convergence_time(times_s, values, threshold))
+    lower_bound_s = None
+    if metric == "max_pairwise":
+        lower_bound_s = metrics.lower_bound_s(positions[0], threshold, scenario.robot.v_max_mps)
+    components = graphs.connected_components(final_adjacency)
+    ratio = None
+    if convergence_time_s is not None and lower_bound_s:
+        ratio = convergence_time_s / lower_bound_s
+    return {
+        "scenario": scenario.name,
+        "engine": scenario.sim.engine,
+        "controller": scenario.controller.kind,
+        "robots": scenario.robots.count,
+        "metric": metric,
+        "threshold": threshold,
+        "converged": convergence_time_s is not None,
+        "convergence_time_s": convergence_time_s,
+        "final_metric": float(values[-1]),
+        "initial_metric": float(values[0]),
+        "lower_bound_s": lower_bound_s,
+        "ratio_to_lower_bound": ratio,
+        "duration_s": float(times_s[-1]),
+        "ticks": int(len(times_s) - 1),
+        "graph_connected": len(components) == 1,
+        "components": metrics.component_results(times_s, positions, components, metric, threshold),
+    }
+
+
+def write_metrics(out_dir: Path, outcome: dict) -> None:
+    """``metrics.json``; ``partial`` is true when the outcome is of a run that did not complete
+    (``incomplete`` says why)."""
+    outcome["partial"] = bool(outcome.get("incomplete"))
+    (out_dir / "metrics.json").write_text(json.dumps(outcome, indent=2) + "\n")
+
+
+def write_partial_results(out_dir: Path, why: str) -> dict | None:
+    """``metrics.json`` and the plots of a run that ended early, from what is on disk, marked partial
+    with ``why``; None (and nothing written) when there is not one complete tick to report on. Never
+    raises: it runs on the way out of a failed or interrupted run."""
+    import logging
+
+    from swarm.scenarios.scenario import ScenarioError
+
+    trajectory = Path(out_dir) / "trajectory.jsonl"
+    if not trajectory.is_file() or trajectory.stat().st_size == 0:
+        return None  # ended before its first tick: nothing to report on
+    try:
+        return report(out_dir, partial=why)
+    except (ScenarioError, OSError, ValueError) as error:
+        logging.getLogger(__name__).warning("no partial results in %s: %s", out_dir, error)
+        return None
+
+
+def summary_lines(outcome: dict, out_dir: Path | str) -> list[str]:
+    """What a finished run prints: its outcome, the faults it met and where its results are."""
+    lines = [
+        f"{outcome['scenario']}: {outcome['controller']} on {outcome['engine']}, {outcome['robots']} robots",
+    ]
+    if outcome.get("incomplete"):
+        lines.append(f"  PARTIAL: {outcome['incomplete']}")
+    faults = outcome.get("faults") or {}
+    live = faults.get("live_robots")
+    who = f" (live robots {live})" if live is not None and len(live) < outcome["robots"] else ""
+    metric = f"{outcome['metric']} <= {outcome['threshold']:g} m"
+    bound = outcome["lower_bound_s"]
+    if outcome["converged"]:
+        ratio = f", {outcome['ratio_to_lower_bound']:.2f}x the lower bound {bound:.2f} s" if bound else ""
+        lines.append(f"  converged{who}: {metric} from {outcome['convergence_time_s']:.2f} s{ratio}")
+    elif outcome.get("final_metric") is None:
+        lines.append("  NOT converged: no live robot at the end")
+    else:
+        lines.append(
+            f"  NOT converged{who}: final {outcome['metric']} {outcome['final_metric']:.3f} m"
+            f" ({metric} wanted)"
+        )
+    if len(outcome["components"]) > 1:
+        lines.append(f"  graph has {len(outcome['components'])} components:")
+        for component in outcome["components"]:
+            state = (
+                f"converged from {component['convergence_time_s']:.2f} s"
+                if component["converged"]
+                else f"not converged (final {component['final_metric']:.3f} m)"
+            )
+            lines.append(f"    robots {component['robots']}: {state}")
+    if faults:
+        lines += ["  " + line for line in fault_lines(faults)]
+    lines.append(f"  results: {out_dir}")
+    return lines
+
+
+def fault_lines(faults: dict) -> list[str]:
+    """The faults block of metrics.json in words: what was done, who is lost, what is down, what was lost."""
+    lines = []
+    for event in faults.get("events", []):
+        who = "" if event.get("robot") is None else f" robot {event['robot']}"
+        lines.append(f"fault: {event['kind']}{who} at {event['at_s']:.2f} s (tick {event['tick']})")
+    for fault in faults.get("scheduled", []):
+        if fault["kind"] in ("drop_link", "restore_link", "packet_loss", "delay"):
+            details = ", ".join(
+                f"{key} {fault[key]}"
+                for key in ("link", "direction", "p", "ticks", "until_s")
+                if key in fault
+            )
+            lines.append(f"fault: {fault['kind']} at {fault.get('at_s', 0.0):.2f} s ({details})")
+    if faults.get("agents_lost"):
+        lines.append(f"agents lost (killed, not restarted): robots {faults['agents_lost']}")
+    if faults.get("agents_restarted"):
+        lines.append(f"agents restarted: robots {faults['agents_restarted']}")
+    if faults.get("agents_hung_at_end"):
+        lines.append(f"agents hung at the end: robots {faults['agents_hung_at_end']}")
+    if faults.get("server_killed"):
+        lines.append("sim server killed")
+    if faults.get("links_down_at_end"):
+        lines.append(f"links down at the end: {faults['links_down_at_end']}")
+    counts = faults.get("messages") or {}
+    lost = {
+        name: counts.get(name, 0)
+        for name in ("lost", "dropped_by_fault", "lost_by_fault", "delayed_by_fault")
+    }
+    if any(lost.values()):
+        lost = {name: value for name, value in lost.items() if value}
+        lines.append(
+            "messages: " + ", ".join(f"{value} {name.replace('_', ' ')}" for name, value in lost.items())
+        )
+    if not faults.get("live_graph_connected", True):
+        lines.append("the live graph is split: no global consensus possible")
+    return lines
+
+
+def report(out_dir: Path, partial: str | None = None) -> dict:
+    """Re-create ``metrics.json``, ``convergence.png`` and ``animation.gif`` from what a run left on
+    disk, however it ended (``swarm report RUN_DIR``): the scenario, the trajectory up to its last
+    complete line, and ``events.jsonl`` when there is one. Keys of an earlier ``metrics.json`` that
+    the trajectory cannot give (``processes``, ``runtime``, ...) are kept. ``partial``: why the run
+    ended early (the outcome is then marked partial even if every tick is there). Raises
+    ``ScenarioError`` with one line when the directory cannot be read."""
+    from swarm.scenarios.scenario import ScenarioError, load_scenario
+
+    out_dir = Path(out_dir)
+    if not out_dir.is_dir():
+        raise ScenarioError(f"{out_dir}: no such results directory")
+    scenario = load_scenario(out_dir / "scenario.yaml")
+    path = out_dir / "trajectory.jsonl"
+    try:
+        times_s, poses, _ = read_trajectory(path)
+    except FileNotFoundError:
+        raise ScenarioError(f"{path}: no trajectory (the run ended before its first tick)") from None
+    except ValueError as error:
+        raise ScenarioError(f"{path}: unreadable poses: {error}") from None
+    count = scenario.robots.count
+    if not len(times_s):
+        raise ScenarioError(f"{path}: no complete tick (the run ended before its first tick)")
+    if poses.shape[1] != count:
+        raise ScenarioError(f"{path}: poses of {poses.shape[1]} robots but the scenario has {count}")
+    adjacency = scenario.adjacency()
+    if adjacency is None:
+        assert scenario.topology.radius_m is not None  # no fixed graph: a disk graph
+        adjacency = graphs.disk(poses[-1, :, :2], scenario.topology.radius_m)
+    outcome = summarize(scenario, times_s, poses, adjacency)
+    try:
+        previous = json.loads((out_dir / "metrics.json").read_text())
+    except (OSError, ValueError):
+        previous = {}
+    if not isinstance(previous, dict):
+        previous = {}
+    outcome = {**previous, **outcome}
+    steps = scenario.steps
+    if partial:
+        outcome["incomplete"] = partial
+        outcome["ticks_planned"] = steps
+    elif len(times_s) < steps + 1:
+        outcome.setdefault("incomplete", f"the trajectory has {len(times_s)} of {steps + 1} ticks")
+        outcome["ticks_planned"] = steps
+    if scenario.faults:  # judged on the live robots, from events.jsonl and the agents' records
+        from swarm.core.faults import add_fault_results
+
+        records = {}
+        for record_path in (out_dir / "logs").glob("agent_*.json"):
+            with contextlib.suppress(OSError, ValueError, IndexError):
+                records[int(record_path.stem.split("_")[1])] = json.loads(record_path.read_text())
+        add_fault_results(outcome, scenario, out_dir, records, times_s, poses)
+    write_metrics(out_dir, outcome)
+    write_pictures(out_dir, scenario, times_s, poses, outcome)
+    return outcome

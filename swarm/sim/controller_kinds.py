@@ -1,0 +1,178 @@
+"""The controller registry: every ``controller.kind`` and how each engine runs it.
+
+One entry per kind says which scenario options it takes, how the batched kinematic engine builds it
+(``swarm.sim.controllers``, numba), and how the distributed runtime runs it: on board every robot
+(``swarm.sim.onboard``, numpy only) or as one central process (``robot_agent.central``). The scenario
+schema, ``swarm run``, ``swarm sweep``, the sim server and the robot agents all look kinds up here.
+Importing this module is cheap (no numba, no torch): the engines' classes are imported on use.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from swarm.core.robot import RobotParams
+
+
+@dataclass(frozen=True)
+class ControllerArgs:
+    """What building a controller may need, whatever its kind (each kind reads its own)."""
+
+    robot: RobotParams
+    control_period_s: float = 0.05
+    gain: float = 1.0
+    directions: int = 16
+    reverse: bool = True
+    robot_count: int = 0
+    policy: Any = None  # gnn: a policy file path (batched) or its bytes (onboard)
+
+    @classmethod
+    def from_spec(cls, spec: Mapping[str, Any], robot: RobotParams, control_period_s: float, **more):
+        """From a scenario's ``controller`` section (a mapping, e.g. ``ControllerSpec.model_dump()``)."""
+        options = {key: spec[key] for key in ("gain", "directions", "reverse") if spec.get(key) is not None}
+        return cls(robot=robot, control_period_s=control_period_s, **options, **more)
+
+
+def _local_consensus(args: ControllerArgs):
+    from swarm.sim.controllers import LocalConsensus
+
+    return LocalConsensus(args.robot, args.gain)
+
+
+def _centralized(args: ControllerArgs):
+    from swarm.sim.controllers import Centralized
+
+    return Centralized(args.robot, args.gain)
+
+
+def _gnn(args: ControllerArgs):
+    from swarm.sim.policy import load_policy
+
+    if args.policy is None:
+        raise ValueError("controller 'gnn' needs a policy file (controller.model)")
+    return load_policy(args.policy, args.robot, args.robot_count)
+
+
+def _mec_flood(args: ControllerArgs):
+    from swarm.sim.controllers import MecFlood
+
+    return MecFlood(args.robot, args.control_period_s, args.directions, args.reverse)
+
+
+def _centralized_mec(args: ControllerArgs):
+    from swarm.sim.controllers import CentralizedMec
+
+    return CentralizedMec(args.robot, args.control_period_s, args.reverse)
+
+
+def _onboard_local_consensus(args: ControllerArgs):
+    from swarm.sim.onboard import OnboardLocalConsensus
+
+    return OnboardLocalConsensus(args.robot, args.gain)
+
+
+def _onboard_gnn(args: ControllerArgs):
+    from swarm.sim.onboard import onboard_policy
+
+    return onboard_policy(args.policy, args.robot, args.robot_count)
+
+
+def _onboard_mec_flood(args: ControllerArgs):
+    from swarm.sim.onboard import OnboardMecFlood
+
+    return OnboardMecFlood(args.robot, args.control_period_s, args.directions, args.reverse)
+
+
+@dataclass(frozen=True)
+class ControllerKind:
+    name: str
+    summary: str
+    batched: Callable[[ControllerArgs], Any]
+    onboard: Callable[[ControllerArgs], Any] | None = None
+    """None: not decentralized; the runtime runs it as one central process (``robot_agent.central``)."""
+    options: tuple[str, ...] = field(default=())
+    """Scenario keys of ``controller`` beyond ``kind`` that this kind reads."""
+
+    @property
+    def central(self) -> bool:
+        return self.onboard is None
+
+
+CONTROLLER_KINDS: dict[str, ControllerKind] = {
+    kind.name: kind
+    for kind in (
+        ControllerKind("gnn", "the learned GNN policy (controller.model)", _gnn, _onboard_gnn, ("model",)),
+        ControllerKind(
+            "local_consensus",
+            "thesis eq. 3.1 on the robot's own graph",
+            _local_consensus,
+            _onboard_local_consensus,
+            ("gain",),
+        ),
+        ControllerKind(
+            "centralized",
+            "thesis eq. 3.1 on the complete graph (the thesis's expert)",
+            _centralized,
+            None,
+            ("gain",),
+        ),
+        ControllerKind(
+            "mec_flood",
+            "max-consensus flood of support points, full speed toward their MEC centre",
+            _mec_flood,
+            _onboard_mec_flood,
+            ("directions", "reverse"),
+        ),
+        ControllerKind(
+            "centralized_mec",
+            "full speed toward the exact minimum enclosing circle's centre of the current positions",
+            _centralized_mec,
+            None,
+            ("reverse",),
+        ),
+    )
+}
+
+
+def controller_kind(name: str) -> ControllerKind:
+    """The registry entry of ``name``; ValueError naming the known kinds otherwise."""
+    try:
+        return CONTROLLER_KINDS[name]
+    except KeyError:
+        raise ValueError(f"unknown controller kind {name!r} (known: {', '.join(CONTROLLER_KINDS)})") from None
+
+
+def batched_controller(name: str, args: ControllerArgs):
+    """The batched (kinematic-engine) controller of kind ``name``."""
+    return controller_kind(name).batched(args)
+
+
+def onboard_controller(name: str, args: ControllerArgs):
+    """The onboard (one robot, numpy only) controller of kind ``name``; ValueError for a central kind."""
+    kind = controller_kind(name)
+    if kind.onboard is None:
+        raise ValueError(f"controller {name!r} runs as one central process, not on board a robot")
+    return kind.onboard(args)
+
+
+def robot_controller(
+    kind: str,
+    robot: RobotParams,
+    gain: float = 1.0,
+    policy_bytes: bytes | None = None,
+    robot_count: int = 0,
+    control_period_s: float = 0.05,
+    options: Mapping[str, Any] | None = None,
+):
+    """The onboard controller of one robot (what a robot agent runs). ``gnn`` loads the policy
+    file's bytes with the scenario's robot parameters; ``options`` is the scenario's ``controller``
+    section (``mec_flood``: directions, reverse). Central kinds (``centralized``,
+    ``centralized_mec``) are not onboard controllers: they run as one central process
+    (``python -m robot_agent.central``); ValueError for them and for unknown kinds."""
+    spec = {**(options or {}), "gain": gain}
+    args = ControllerArgs.from_spec(
+        spec, robot, control_period_s, robot_count=robot_count, policy=policy_bytes
+    )
+    return onboard_controller(kind, args)
