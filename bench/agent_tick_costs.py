@@ -3,7 +3,8 @@
 Each piece is timed on its own in this process (``timeit``, the best of ``--repeats`` rounds: the
 figure least disturbed by other load), with the payloads a real run carries (local consensus, message
 dimension 2, ``--neighbours`` neighbours, no link faults). The real agent's pieces call the functions
-``robot_agent`` calls (``swarm.runtime.wire``, ``swarm.core.faults.select_message``, ``swarm.sim.onboard``); the
+``robot_agent`` calls (``swarm.runtime.wire``, ``swarm.core.faults.select_message``,
+``swarm.sim.onboard``); the
 per-neighbour bookkeeping of ``RobotAgent._drain_messages`` and ``_loop`` is timed through a real
 ``RobotAgent`` where it is a method, and as the same statements where it is inline. Zenoh's own
 work (``recv``, ``put``, its threads) is the floor both agents share and is not timed here

@@ -138,7 +138,8 @@ def write_tables(out: Path, rows: list[dict], args) -> None:
     header = "| graph | N | loss | " + " | ".join(LABELS[c] for c in controllers) + " |"
     lines = [
         "Convergence time over the lower bound `max(0, R_mec - threshold/sqrt 3) / v_max`, median / p95",
-        f"over {args.seeds} random starts per cell (`swarm.scenarios.sweep.cell_starts`, seed 0), kinematic engine,",
+        f"over {args.seeds} random starts per cell (`swarm.scenarios.sweep.cell_starts`, seed 0),"
+        " kinematic engine,",
         "threshold 0.2 m held 5 s, v_max 0.5 m/s, control period 0.05 s. Every cell converged on 100 %",
         "of its starts unless marked `(x % ok)`; `[n]`: only the first n starts were run.",
         "Loss: probability that a message is lost (`packet_loss` on every link; lockstep timing: a lost",

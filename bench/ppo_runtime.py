@@ -1,8 +1,8 @@
 """The PPO-tuned GNN in the PyBullet + Zenoh runtime against tuned local consensus and the BC model.
 
-For each start seed, writes a scenario (N robots on a cycle, uniform in ``swarm.core.initial_poses.box_for(N)``
-0.4 m apart, v_max 0.5 m/s, lockstep, 20 Hz) per controller and runs it with
-``python -m swarm.cli run`` exactly as a user would (one sim_server process and N robot_agent
+For each start seed, writes a scenario (N robots on a cycle, uniform in
+``swarm.core.initial_poses.box_for(N)`` 0.4 m apart, v_max 0.5 m/s, lockstep, 20 Hz) per controller and
+runs it with ``python -m swarm.cli run`` exactly as a user would (one sim_server process and N robot_agent
 processes over Zenoh), on the PyBullet engine and, for reference, on the kinematic engine. Reads
 each run's ``metrics.json`` and ``trajectory.jsonl``: convergence time at the scenario's threshold
 (PyBullet: robots have bodies and jam, so its threshold is that of a gathered group; kinematic:

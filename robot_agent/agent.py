@@ -151,7 +151,7 @@ class AgentOptions:
     lease_ms: int = 1000
     startup_timeout_s: float = 60.0
     log_dir: Path | None = None
-    zenoh_settings: dict = field(default_factory=dict)  # more session settings (swarm.runtime.acl credentials)
+    zenoh_settings: dict = field(default_factory=dict)  # more session settings (acl credentials)
 
 
 @dataclass
@@ -330,7 +330,7 @@ class RobotAgent:
 
     def _drain_messages(self) -> None:
         counters, newest = self.counters, self._newest_message_tick
-        limit = self._window.limit(time.perf_counter())  # no neighbour is ahead of the sim (swarm.runtime.ticks)
+        limit = self._window.limit(time.perf_counter())  # no neighbour is ahead of the sim (ticks.py)
         for j, inlet in self._msg_inlets.items():
             box = self._inbox[j]
             while (payload := inlet.take()) is not None:
@@ -358,7 +358,8 @@ class RobotAgent:
 
     def _next_pose(self, inlet: Inlet) -> wire.Pose | None:
         """Block for a pose newer than the last one used and inside the agent's window (the newest
-        if several are queued; one dated beyond it only once a second pose confirms it: swarm.runtime.ticks)."""
+        if several are queued; one dated beyond it only once a second pose confirms it:
+        swarm.runtime.ticks)."""
         counters, window, newest = self.counters, self._window, None
         while newest is None:
             payload = self._recv(inlet)
@@ -610,7 +611,7 @@ class RobotAgent:
                 box = self._inbox[j]
                 delay = 0 if no_faults else faults.delay_ticks(j, me, tick)
                 came = lambda k, box=box, j=j: k in box and (no_faults or faults.heard(j, me, k))  # noqa: E731
-                sent = select_message(tick, delay, max_age, came)  # swarm.core.faults' rule, KinematicSim's too
+                sent = select_message(tick, delay, max_age, came)  # faults.py's rule, KinematicSim's too
                 values = None if sent is None else box[sent]
                 needed = tick - 1 - delay  # what the timing names; older ones only stand in for it
                 reason = HEARD if no_faults or needed < 0 else faults.reason(j, me, needed)

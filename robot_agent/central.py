@@ -62,7 +62,7 @@ class CentralController:
             "ticks": 0,
             "poses_invalid": 0,
             "poses_old": 0,
-            "poses_future": 0,  # dated beyond what its own clock allows (swarm.runtime.ticks): forged or ahead
+            "poses_future": 0,  # beyond its own clock (swarm.runtime.ticks): forged or ahead
             "callback_errors": 0,
             "incomplete_ticks": 0,
             "exit_reason": None,

@@ -55,7 +55,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--model", help="policy file for controller gnn (default: the scenario's)")
     parser.add_argument("--lease-ms", type=int, default=1000, help="Zenoh lease (default 1000 ms)")
     parser.add_argument(
-        "--users", help="sim.acl: file of the agents' user:password lines (python -m swarm.runtime.acl credentials)"
+        "--users",
+        help="sim.acl: file of the agents' user:password lines (python -m swarm.runtime.acl credentials)",
     )
     parser.add_argument("--startup-timeout", type=float, default=60.0, help="seconds to wait for all agents")
     parser.add_argument(

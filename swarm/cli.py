@@ -100,7 +100,8 @@ def _results_dir(args: argparse.Namespace, name: str) -> Path:
 
 
 def _write_recordings(out_dir: Path, formats: list[str] | None) -> None:
-    """The recordings asked for with ``--record`` (``swarm.scenarios.recording``), from the results on disk."""
+    """The recordings asked for with ``--record`` (``swarm.scenarios.recording``), from the results
+    on disk."""
     if formats:
         from swarm.scenarios.recording import write_recordings
 

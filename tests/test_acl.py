@@ -1,4 +1,5 @@
-"""Enforced decentralization (``sim.acl``, swarm/runtime/acl.py): Zenoh access control generated from the graph.
+"""Enforced decentralization (``sim.acl``, swarm/runtime/acl.py): Zenoh access control generated from the
+graph.
 
 The rules and credentials are checked as data; then a real run with access control on (sim server,
 one agent process per robot, real Zenoh sessions) must converge while a rogue process, authenticated

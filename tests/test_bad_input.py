@@ -252,7 +252,8 @@ def test_sim_server_command_line(files, tmp_path, args, expected):
 
 def test_acl_credentials_command(tmp_path):
     one_line_error(
-        [PYTHON, "-m", "swarm.runtime.acl", "credentials", "--robots", "0", "--out", str(tmp_path)], "--robots"
+        [PYTHON, "-m", "swarm.runtime.acl", "credentials", "--robots", "0", "--out", str(tmp_path)],
+        "--robots",
     )
     result = subprocess.run(
         [PYTHON, "-m", "swarm.runtime.acl", "credentials", "--robots", "2", "--out", str(tmp_path / "c")],

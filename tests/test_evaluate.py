@@ -1,5 +1,5 @@
-"""Tests for ``swarm evaluate`` (swarm.scenarios.evaluate on swarm.scenarios.sweep), DAgger (swarm.learn.train.dagger) and the
-shipped default model of controller ``gnn`` (models/gnn_default.npz)."""
+"""Tests for ``swarm evaluate`` (swarm.scenarios.evaluate on swarm.scenarios.sweep), DAgger
+(swarm.learn.train.dagger) and the shipped default model of controller ``gnn`` (models/gnn_default.npz)."""
 
 from __future__ import annotations
 

@@ -289,7 +289,8 @@ def test_policy_runs_without_torch_or_numba(tmp_path):
         import sys
         import numpy as np
         import swarm.sim.policy, swarm.sim.onboard
-        controller = swarm.sim.policy.load_policy(open({str(path)!r}, "rb").read(), swarm.core.robot.RobotParams(), 4)
+        robot = swarm.core.robot.RobotParams()
+        controller = swarm.sim.policy.load_policy(open({str(path)!r}, "rb").read(), robot, 4)
         heard = np.zeros((0, controller.message_dim))
         for tick in range(3):
             u, message = controller.act_one(np.array([0.1, 0.2, 0.3]), heard)

@@ -89,7 +89,8 @@ def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
 def test_the_project_has_no_import_cycle():
     graph = import_graph(project_modules())
     assert len(graph) > 40  # every module was found
-    assert "swarm.scenarios.report" in graph["swarm.scenarios.results"]  # edges are found (results draws its pictures)
+    # edges are found (results draws its pictures)
+    assert "swarm.scenarios.report" in graph["swarm.scenarios.results"]
     cycle = find_cycle(graph)
     assert cycle is None, "import cycle: " + " -> ".join(cycle or [])
 

@@ -1,4 +1,5 @@
-"""swarm.learn.models and swarm.sim.policy: export, torch-free inference, parity (numpy == torch, robot == batch)."""
+"""swarm.learn.models and swarm.sim.policy: export, torch-free inference, parity (numpy == torch,
+robot == batch)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
-"""Tests for swarm.scenarios.scenario: the YAML schema, one-line errors naming file, key and reason, the resolved
-scenario round trip, reproducible initial poses and graphs.
+"""Tests for swarm.scenarios.scenario: the YAML schema, one-line errors naming file, key and reason, the
+resolved scenario round trip, reproducible initial poses and graphs.
 
 ``BAD_SCENARIOS`` is shared with tests/test_cli.py, which checks the same files through ``swarm run``.
 """

@@ -24,7 +24,8 @@ from swarm.core import graphs
 
 
 class GraphParams(Protocol):
-    """What a builder may read: the parameters of ``swarm.scenarios.scenario.TopologySpec`` (or :class:`Params`)."""
+    """What a builder may read: the parameters of ``swarm.scenarios.scenario.TopologySpec`` (or
+    :class:`Params`)."""
 
     @property
     def p(self) -> float | None: ...

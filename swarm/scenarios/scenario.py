@@ -204,8 +204,9 @@ class SimSpec(_Strict):
     )
     acl: bool = Field(
         False,
-        description="pybullet engine: enforce the decentralization with Zenoh access control (swarm/runtime/acl.py):"
-        " the sim server's router admits only agents with the run's credentials, each to its own pose,"
+        description="pybullet engine: enforce the decentralization with Zenoh access control"
+        " (swarm/runtime/acl.py): the sim server's router admits only agents with the run's credentials,"
+        " each to its own pose,"
         " command and token and its graph neighbours' messages and tokens",
     )
 
@@ -335,7 +336,9 @@ class Scenario(_Strict):
     sim: SimSpec = Field(default_factory=SimSpec)
     faults: list[FaultSpec] = Field(default_factory=list)
     faults_seed: int = Field(
-        0, ge=0, description="seed of the packet-loss draws (swarm/core/faults.py): same seed, same packets lost"
+        0,
+        ge=0,
+        description="seed of the packet-loss draws (swarm/core/faults.py): same seed, same packets lost",
     )
     success: SuccessSpec = Field(default_factory=SuccessSpec)
 

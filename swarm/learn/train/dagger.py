@@ -46,7 +46,7 @@ class DAggerConfig:
     beta0: float = 0.5  # expert share of the driving in iteration 1
     beta_decay: float = 0.5
     samples_per_iteration: int = 250_000
-    collect: dict = field(default_factory=dict)  # swarm.learn.data.CollectConfig overrides (sizes, graphs, ...)
+    collect: dict = field(default_factory=dict)  # learn.data.CollectConfig overrides (sizes, graphs, ...)
     bc: dict = field(default_factory=lambda: {"epochs": 4, "lr": 1e-3})  # BCConfig overrides, refits
     warm_start: bool = True
     # closed-loop check of every iterate: starts per cell, cells, time limit
