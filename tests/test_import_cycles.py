@@ -1,10 +1,13 @@
-"""No import cycle in the project's packages (docs/design.md, "Architecture").
+"""No import cycle in the project's packages, and imports that go one way between its layers
+(docs/design.md, "Architecture").
 
 The graph is read statically from the source (AST): every ``import x`` and ``from x import y``, at
 module level, inside functions and under ``TYPE_CHECKING`` alike, resolved to the project module it
-names (``from swarm import graphs`` is an edge to ``swarm.core.graphs``; a package's ``__init__`` is a
-module of its own). Imports also go one way between the top-level packages: ``swarm`` never
-imports ``sim_server`` or ``robot_agent``.
+names (``from swarm.core import graphs`` is an edge to ``swarm.core.graphs``; a package's
+``__init__`` is a module of its own). Between the top-level packages: ``swarm`` never imports
+``sim_server`` or ``robot_agent``. Inside ``swarm`` (``LAYERS``): the command line imports the
+runtime and learning, which import the scenarios, which import the simulators, which import the
+math; never the other way, and the runtime and learning never import each other.
 """
 
 from __future__ import annotations
@@ -16,6 +19,24 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("swarm", "sim_server", "robot_agent")
+
+# Each package's layer, bottom first; a module may import its own layer and the layers below it.
+# ``swarm`` itself (its ``__init__``: the version) is the floor; any other module directly under
+# ``swarm`` belongs to no layer, so a new flat module fails the test.
+LAYERS: dict[str, tuple[int, str]] = {
+    "swarm": (0, "root"),
+    "swarm.core": (1, "math"),
+    "swarm.sim": (2, "simulators"),
+    "swarm.scenarios": (3, "scenarios"),
+    "swarm.learn": (4, "learning"),
+    "swarm.rl": (4, "learning"),
+    "swarm.runtime": (4, "runtime"),
+    "swarm.cli": (5, "command line"),
+    "sim_server": (5, "processes"),
+    "robot_agent": (5, "processes"),
+}
+# Below a layer but still not allowed: the processes never import learning (torch) or the command line.
+FORBIDDEN = {("processes", "learning")}
 
 
 def project_modules(root: Path = ROOT) -> dict[str, Path]:
@@ -101,6 +122,63 @@ def test_swarm_never_imports_the_processes():
         if module.split(".")[0] == "swarm":
             wrong = sorted(t for t in targets if t.split(".")[0] != "swarm")
             assert not wrong, f"{module} imports {wrong}"
+
+
+def layer_of(module: str) -> tuple[int, str] | None:
+    """``LAYERS`` of the longest package that ``module`` lies in; None for a module in none."""
+    name = module
+    while name not in LAYERS:
+        name = name.rpartition(".")[0]
+        if not name:
+            return None
+    if LAYERS[name][1] == "root" and module != name:
+        return None  # a flat module under swarm/
+    return LAYERS[name]
+
+
+def layer_violations(graph: dict[str, set[str]]) -> list[str]:
+    """Every module outside the layers and every import that goes up, sideways or is forbidden."""
+    wrong = []
+    for module, targets in sorted(graph.items()):
+        layer = layer_of(module)
+        if layer is None:
+            wrong.append(f"{module} is in no layer (put it in a sub-package of LAYERS)")
+            continue
+        for target in sorted(targets):
+            other = layer_of(target)
+            if other is None or other[1] == layer[1]:
+                continue  # reported as a module of its own, or the same layer
+            if other[0] >= layer[0] or (layer[1], other[1]) in FORBIDDEN:
+                wrong.append(f"{module} ({layer[1]}) imports {target} ({other[1]})")
+    return wrong
+
+
+def test_imports_go_one_way_between_the_layers():
+    graph = import_graph(project_modules())
+    assert {layer_of(module) for module in graph} == set(LAYERS.values())  # every layer has modules
+    assert not layer_violations(graph), "\n".join(layer_violations(graph))
+
+
+@pytest.mark.parametrize(
+    ("sources", "wrong"),
+    [
+        ({"sim/a": "from swarm.core import b\n", "core/b": "import numpy\n"}, []),  # down: fine
+        ({"core/b": "def f():\n    from swarm.sim import a\n", "sim/a": ""}, ["swarm.core.b"]),  # up
+        ({"learn/a": "from swarm.runtime import b\n", "runtime/b": ""}, ["swarm.learn.a"]),  # sideways
+        ({"rl/a": "from swarm.learn import b\n", "learn/b": ""}, []),  # one layer, two packages
+        ({"flat": "from swarm.core import b\n", "core/b": ""}, ["swarm.flat"]),  # in no layer
+        ({"cli": "from swarm.learn import b\n", "learn/b": "from swarm import cli\n"}, ["swarm.learn.b"]),
+    ],
+)
+def test_the_layer_check_finds_imports_that_go_up_or_sideways(tmp_path, sources, wrong):
+    for name, text in sources.items():
+        path = tmp_path / "swarm" / f"{name}.py"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        for folder in [path.parent, *path.parent.parents][: len(Path(name).parts)]:
+            (folder / "__init__.py").touch()
+        path.write_text(text)
+    found = layer_violations(import_graph(project_modules(tmp_path)))
+    assert [line.split()[0] for line in found] == wrong, found
 
 
 @pytest.mark.parametrize(
