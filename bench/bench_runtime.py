@@ -152,12 +152,18 @@ def _children_cpu_s() -> float:
 
 def _cpu_s(processes: list[psutil.Process]) -> float:
     """Summed user + system CPU seconds (every thread) of ``processes``, from ``/proc/<pid>/stat``."""
-    total = 0.0
+    return sum(_cpu_s_by_pid(processes).values())
+
+
+def _cpu_s_by_pid(processes: list[psutil.Process]) -> dict[int, float]:
+    """User + system CPU seconds of each of ``processes`` that could be read (one that exited
+    meanwhile is left out, not counted as 0)."""
+    by_pid = {}
     for process in processes:
-        with contextlib.suppress(psutil.NoSuchProcess, psutil.AccessDenied):
+        with contextlib.suppress(psutil.NoSuchProcess, psutil.AccessDenied, psutil.ZombieProcess):
             times = process.cpu_times()
-            total += times.user + times.system
-    return total
+            by_pid[process.pid] = times.user + times.system
+    return by_pid
 
 
 def _server_endpoint(cli: psutil.Process) -> tuple[str, str] | None:
@@ -236,10 +242,12 @@ class Floor:
         real = _agent_processes(cli)
         bare = psutil.Process(self.process.pid).children()
         commands, real_commands = self.commands, self.real_commands
-        real_cpu_s, bare_cpu_s = _cpu_s(real), _cpu_s(bare)
+        real_cpu, bare_cpu = _cpu_s_by_pid(real), _cpu_s_by_pid(bare)
+        real_cpu_s, bare_cpu_s = sum(real_cpu.values()), sum(bare_cpu.values())
         self.samples.append(
             {"real_cpu_s": real_cpu_s, "bare_cpu_s": bare_cpu_s, "bare_commands": commands}
-            | {"real_commands": real_commands, "real_agents": len(real), "bare_agents": len(bare)}
+            | {"real_commands": real_commands, "real_agents": len(real_cpu), "bare_agents": len(bare_cpu)}
+            | {"real_pids": sorted(real_cpu), "bare_pids": sorted(bare_cpu)}
         )
 
     def finish(self) -> dict:
@@ -268,6 +276,9 @@ class Floor:
             < self.count
         ):
             return result | {"error": f"agents missing from the CPU window: {self.samples}"}
+        if first["real_pids"] != last["real_pids"] or first["bare_pids"] != last["bare_pids"]:
+            # an agent exited (or was replaced) between the edges: its CPU is not in both sums
+            return result | {"error": f"other agent processes at the CPU window's edges: {self.samples}"}
         # CPU per tick computed: commands sent in the window, per agent (a bare agent that fell behind
         # skips poses, as the real one would: it is charged only for the ticks it computed)
         ticks = (last["real_commands"] - first["real_commands"]) / self.count

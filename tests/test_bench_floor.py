@@ -16,7 +16,10 @@ def test_bare_agents_shadow_every_tick_with_the_real_payloads(tmp_path: Path) ->
     data = bench_runtime.scenario_data(count, "lockstep", duration_s, None, None, seed=2)
     scenario = tmp_path / "floor.yaml"
     scenario.write_text(bench_runtime.yaml.safe_dump(data))
-    floor = bench_runtime.Floor(count, tmp_path / "bare", steps // 5, steps - steps // 5)
+    # the window closes at mid-run: the edge is judged on commands counted by a consumer that may lag
+    # on a loaded machine, and the agents must still be there when it closes (CI once sampled them
+    # after they had exited, at an edge 60 ticks before the end: a negative CPU per tick)
+    floor = bench_runtime.Floor(count, tmp_path / "bare", steps // 5, steps // 2)
     result = bench_runtime.run_once(scenario, tmp_path / "run", steps, 200.0, None, floor)
     assert "error" not in result, result
     measured = result["floor"]
