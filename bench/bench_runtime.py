@@ -150,14 +150,9 @@ def _children_cpu_s() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def _cpu_s(processes: list[psutil.Process]) -> float:
-    """Summed user + system CPU seconds (every thread) of ``processes``, from ``/proc/<pid>/stat``."""
-    return sum(_cpu_s_by_pid(processes).values())
-
-
 def _cpu_s_by_pid(processes: list[psutil.Process]) -> dict[int, float]:
-    """User + system CPU seconds of each of ``processes`` that could be read (one that exited
-    meanwhile is left out, not counted as 0)."""
+    """User + system CPU seconds (every thread, ``/proc/<pid>/stat``) of each of ``processes`` that
+    could be read (one that exited meanwhile is left out, not counted as 0)."""
     by_pid = {}
     for process in processes:
         with contextlib.suppress(psutil.NoSuchProcess, psutil.AccessDenied, psutil.ZombieProcess):
