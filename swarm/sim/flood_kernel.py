@@ -23,7 +23,6 @@ Threads are used for large batches only (``swarm.sim.kernels.PARALLEL_MIN_ROBOTS
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 
 import numba
 import numpy as np
@@ -316,11 +315,9 @@ def _flood_tick(
                     u_world[env, i, 1] = s * ux + c * uy
 
 
-# Typed as plain callables: numba's Dispatcher declares a narrower __call__ than the compiled kernel.
 # error_model="numpy": a float division by zero gives inf or nan as in numpy (``FloodPolicy``) instead of
 # raising, which lets LLVM vectorize the lane loops that divide; no other result changes.
-_serial: Callable[..., None] = numba.njit(cache=True, error_model="numpy")(_flood_tick)
-_parallel: Callable[..., None] = numba.njit(cache=True, parallel=True, error_model="numpy")(_flood_tick)
+_serial, _parallel = kernels.jit_serial_and_parallel(_flood_tick, error_model="numpy")
 
 
 def packed(policy) -> tuple:

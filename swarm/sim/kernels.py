@@ -9,8 +9,11 @@ large batches (and cost a lot when the cores are busy), see ``PARALLEL_MIN_ROBOT
 
 from __future__ import annotations
 
+import inspect
 import math
 import os
+import types
+from collections.abc import Callable
 
 import numba
 import numpy as np
@@ -250,11 +253,67 @@ def _lists_connected(neighbour_index: np.ndarray, reached: np.ndarray, connected
 PARALLEL_MIN_ROBOTS = int(os.environ.get("SWARM_PARALLEL_MIN_ROBOTS", 50_000))
 
 
+def _named(function, suffix: str):
+    """``function`` (same code, globals and defaults) under the qualified name ``function`` + ``suffix``."""
+    copy = types.FunctionType(
+        function.__code__,
+        function.__globals__,
+        function.__name__ + suffix,
+        function.__defaults__,
+        function.__closure__,
+    )
+    copy.__qualname__ = function.__qualname__ + suffix
+    copy.__doc__, copy.__module__ = function.__doc__, function.__module__
+    return copy
+
+
+def jit_serial_and_parallel(function, **options) -> tuple[Callable[..., None], Callable[..., None]]:
+    """``function`` compiled by numba twice, serial and with ``parallel=True``, both cached on disk.
+
+    Each variant is compiled under its own qualified name: numba's disk cache names an entry by the
+    function's qualified name, first line and argument types, not by the compile options, so two
+    variants of one function would share an entry and the second one called would load the first
+    one's machine code (the parallel variant then ran on one thread: ``tests/test_kernels_threads.py``).
+    Typed as plain callables: numba's Dispatcher declares a narrower ``__call__`` than the kernel.
+    """
+    serial = numba.njit(cache=True, **options)(_named(function, "_serial"))
+    parallel = numba.njit(cache=True, parallel=True, **options)(_named(function, "_parallel"))
+    return serial, parallel
+
+
+def _in_chunks(serial, function):
+    """The multi-threaded variant of a ``fastmath`` kernel: the compiled ``serial`` itself on contiguous
+    chunks of axis 0 (robots, or environments) of every array argument, one chunk per thread task.
+
+    Compiled with ``parallel=True`` instead, a fastmath kernel gets other floating-point contractions
+    than its serial twin and results a few ulps apart; run this way, threads never change a bit.
+    Not cached on disk (generated code): a process compiles it on its first threaded call.
+    """
+    parameters = inspect.signature(function).parameters
+    sliced = [
+        name for name, parameter in parameters.items() if parameter.annotation in ("np.ndarray", np.ndarray)
+    ]
+    call = ", ".join(f"{name}[first:last]" if name in sliced else name for name in parameters)
+    source = (
+        f"def {function.__name__}_in_chunks({', '.join(parameters)}):\n"
+        f"    rows = {sliced[0]}.shape[0]\n"
+        "    chunks = min(rows, 4 * numba.get_num_threads())\n"
+        "    for chunk in numba.prange(chunks):\n"
+        "        first = chunk * rows // chunks\n"
+        "        last = (chunk + 1) * rows // chunks\n"
+        f"        serial({call})\n"
+    )
+    namespace = {"numba": numba, "serial": serial}
+    exec(source, namespace)  # the source is built above from the kernel's own parameter names
+    return numba.njit(parallel=True)(namespace[f"{function.__name__}_in_chunks"])
+
+
 def _serial_and_parallel(function):
     # fastmath lets LLVM reassociate and vectorize (about 30% faster here); results stay within
-    # rounding of the numpy reference (tests/test_kinematic.py) and are deterministic.
-    serial = numba.njit(cache=True, fastmath=True)(function)
-    parallel = numba.njit(cache=True, parallel=True, fastmath=True)(function)
+    # rounding of the numpy reference (tests/test_kinematic.py) and are deterministic, and the same
+    # bits on any number of threads (``_in_chunks``).
+    serial = numba.njit(cache=True, fastmath=True)(_named(function, "_serial"))
+    parallel = _in_chunks(serial, function)
 
     def dispatch(*args):
         rows = args[0].shape[0] * (args[0].shape[1] if args[0].ndim == 3 else 1)

@@ -14,7 +14,7 @@ import types
 import numba
 
 from swarm.core import mec
-from swarm.sim.kernels import PARALLEL_MIN_ROBOTS
+from swarm.sim import kernels
 
 welzl_circle = numba.njit(cache=True)(mec.welzl_circle)
 merge_support = numba.njit(cache=True)(mec.merge_support)
@@ -39,12 +39,11 @@ def _compiled_globals(function):
 
 def _serial_and_parallel(function):
     function = _compiled_globals(function)
-    serial = numba.njit(cache=True)(function)
-    parallel = numba.njit(cache=True, parallel=True)(function)
+    serial, parallel = kernels.jit_serial_and_parallel(function)
 
     def dispatch(*args):
         rows = args[0].shape[0] * args[0].shape[1]
-        return (parallel if rows >= PARALLEL_MIN_ROBOTS else serial)(*args)
+        return (parallel if rows >= kernels.PARALLEL_MIN_ROBOTS else serial)(*args)
 
     dispatch.__doc__ = function.__doc__
     dispatch.__name__ = function.__name__.lstrip("_")
