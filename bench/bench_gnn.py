@@ -244,6 +244,8 @@ def profile(policy, batch, count, graph, repeats) -> dict:
             flood_readout.RHO_EPS_M,
             flood_kernel.BLOCK,
             1,
+            flood_kernel._unchanged_before(policy, sim.inbox, links, batch, count),  # as the engine's call
+            np.empty((batch, count), dtype=np.bool_),
             np.empty((batch, count, 2)),
             np.empty(sim.inbox.shape),
         ]
@@ -253,7 +255,7 @@ def profile(policy, batch, count, graph, repeats) -> dict:
         without_mlp = cpu_per_call(lambda: flood_kernel._serial(*no_mlp), calls, repeats)
         fresh = list(arguments)
         fresh[1] = sim.inbox.copy()
-        fresh[1][..., -1] = 0.0  # no message is valid: every target recomputed
+        fresh[1][..., -1] = 0.0  # no message is valid: every target recomputed (and no max skipped)
         recompute = cpu_per_call(lambda: flood_kernel._serial(*fresh), max(3, calls // 20), repeats)
         act = cpu_per_call(lambda: flood_kernel.act(policy, sim.poses, sim.inbox, links), calls, repeats)
         u_world = np.zeros((batch, count, 2))

@@ -6,6 +6,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -171,13 +172,42 @@ def test_batched_kernel_over_blocks_threads_and_targets_taken_from_neighbours(tm
     np.testing.assert_array_equal(threaded, np.array(trajectory))
 
 
+def test_skipping_neighbours_whose_memory_did_not_change_keeps_every_bit(tmp_path):
+    """On a fixed graph the kernel skips the max with a neighbour whose memory did not change at the
+    last tick (``flood_kernel._unchanged_before``). The oracle: the same run with the skip impossible
+    (the engine handed a copy of its inbox each tick, so the kernel cannot know it is its own last
+    outbox); trajectories and messages must be bit for bit the same, and the skip must have had
+    work to do (counted from the messages, outside the kernel)."""
+    trained = Path(__file__).resolve().parent.parent / "models" / "gnn_flood.npz"
+    policy = load_policy(trained)  # the robots gather, and their memories settle
+    batch, count, ticks = 4, 30, 80
+    poses = _poses(22, batch, count, half_width_m=3.0)
+    adjacency = np.stack([graphs.erdos_renyi(count, 0.15, 30 + b, connected=True) for b in range(batch)])
+    runs = []
+    for copy_inbox in (False, True):
+        sim = KinematicSim(ROBOT, policy, DT, poses, adjacency=adjacency)
+        trajectory, messages = [], []
+        for _ in range(ticks):
+            trajectory.append(sim.step().copy())
+            messages.append(sim.inbox.copy())
+            if copy_inbox:
+                sim.inbox = sim.inbox.copy()
+        runs.append((np.array(trajectory), np.array(messages)))
+    np.testing.assert_array_equal(runs[0][0], runs[1][0])
+    np.testing.assert_array_equal(runs[0][1], runs[1][1])
+    memory = runs[1][1][..., : policy.memory_dim]
+    unchanged = np.all(memory[1:] == memory[:-1], axis=-1)  # (T-1, B, N): robot j's memory kept a tick
+    skippable = int(np.einsum("tbj,bij->", unchanged[:-1].astype(int), adjacency.astype(int)))
+    changed = int(np.sum(~unchanged[: ticks // 4]))
+    assert skippable > 10 * batch * count and changed > batch * count  # both paths are exercised
+
+
 def test_a_robot_that_heard_once_keeps_steering_toward_its_memory_target():
     """Hand-checked with the shipped model: robot A at the origin facing +x, robot B 4 m ahead. At
     tick 0 nobody has heard anybody: both hold still. At tick 1 A hears B's tick-0 message, so its
     memory holds both positions and its target is their minimum enclosing circle's centre, (2, 0).
     At tick 2 A hears nobody: it still drives at (nearly) full speed toward (2, 0), which is +x.
     Robot C never hears anybody and holds still in every tick; restarted, A holds still again."""
-    from pathlib import Path
 
     policy = load_policy(Path(__file__).resolve().parent.parent / "models" / "gnn_flood.npz", ROBOT)
     nobody = np.zeros((0, policy.message_dim))
@@ -314,7 +344,6 @@ def test_checkpoint_round_trip_and_old_files_still_load(tmp_path):
     assert isinstance(again, FloodGNN) and isinstance(build_model(model.config()), FloodGNN)
     for name, value in model.state_dict().items():
         torch.testing.assert_close(again.state_dict()[name], value)
-    from pathlib import Path
 
     old = load_policy(Path(__file__).resolve().parent.parent / "models" / "gnn_bc.npz")
     assert old.kind == "gnn"

@@ -16,7 +16,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-SCRIPT = '''
+SCRIPT = """
 import json, numba, numpy as np
 from swarm.sim.kernels import jit_serial_and_parallel
 
@@ -32,7 +32,7 @@ for name, kernel in (("serial", serial), ("parallel", parallel)):
     kernel(out)
     ids[name] = sorted(set(out.tolist()))
 print(json.dumps(ids))
-'''
+"""
 
 
 def test_parallel_variant_uses_threads_after_serial_was_cached(tmp_path: Path) -> None:

@@ -136,6 +136,8 @@ def _flood_tick(
     rho_eps,
     block_size,
     chunks,
+    unchanged_before,
+    unchanged_now,
     u_world,
     outbox,
 ):
@@ -205,12 +207,15 @@ def _flood_tick(
                     if j < 0:
                         break
                     heard = True
+                    if own_valid and unchanged_before[env, j] and inbox[env, j, dim + 2] > 0.0:
+                        continue  # already in this robot's own memory: the max with it changes nothing
                     for d in range(dim):
                         values[d] = max(values[d], inbox[env, j, d])
                 changed = not own_valid
                 for d in range(dim):
                     outbox[env, i, d] = values[d]
                     changed |= values[d] != inbox[env, i, d]  # no short cut: no branch
+                unchanged_now[env, i] = not changed
                 outbox[env, i, dim + 2] = 2.0 if heard else 1.0  # a real message; 2: has heard someone
                 reused = not changed
                 if reused:  # the same memory as last tick: the same target (a function of the memory alone)
@@ -362,6 +367,8 @@ def act(policy, poses: np.ndarray, inbox: np.ndarray, heard) -> tuple[np.ndarray
         policy._checked_links = (heard, inbox.shape[1])
     u_world = np.empty((batch, count, 2))
     outbox = np.empty((batch, count, policy.message_dim))
+    unchanged_now = np.empty((batch, count), dtype=np.bool_)
+    unchanged_before = _unchanged_before(policy, inbox, heard, batch, count)
     parallel = batch * count >= kernels.PARALLEL_MIN_ROBOTS
     kernel = _parallel if parallel else _serial
     kernel(
@@ -375,7 +382,27 @@ def act(policy, poses: np.ndarray, inbox: np.ndarray, heard) -> tuple[np.ndarray
         flood_readout.RHO_EPS_M,
         BLOCK,
         4 * numba.get_num_threads() if parallel else 1,  # chunks, each with its own scratch
+        unchanged_before,
+        unchanged_now,
         u_world,
         outbox,
     )
+    policy._last_call = (outbox, heard, unchanged_now)
     return u_world, outbox
+
+
+def _unchanged_before(policy, inbox: np.ndarray, heard, batch: int, count: int) -> np.ndarray:
+    """Per robot ``(B, N)``: may its message in ``inbox`` be skipped by the neighbours' max?
+
+    True only where the last call of this policy returned ``inbox`` itself as its outbox, over the same
+    neighbour lists ``heard`` (a fixed graph, no link faults: ``KinematicSim`` passes the outbox back as
+    the next inbox), and robot j's memory did not change in that call. Then every neighbour i with a
+    valid own message already took the max with j's previous memory, which equals j's current one, and
+    the max with it again is the identity (max is idempotent): skipped, the result keeps every bit. The
+    kernel also requires both messages valid, which covers an inbox whose rows were zeroed in place
+    (an environment reset); any other edit of a returned outbox before passing it back is not supported.
+    """
+    last = getattr(policy, "_last_call", None)
+    if last is not None and last[0] is inbox and last[1] is heard and inbox.shape[1] == count:
+        return last[2]
+    return np.zeros((batch, count), dtype=np.bool_)
