@@ -16,6 +16,16 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numba
+import numpy as np
+import pytest
+
+from swarm.core import graphs
+from swarm.core.robot import RobotParams
+from swarm.sim import kernels
+from swarm.sim.controller_kinds import ControllerArgs, batched_controller
+from swarm.sim.kinematic import KinematicSim
+
 SCRIPT = """
 import json, numba, numpy as np
 from swarm.sim.kernels import jit_serial_and_parallel
@@ -58,3 +68,25 @@ def test_parallel_variant_uses_threads_after_serial_was_cached(tmp_path: Path) -
         assert ids["serial"] == [0]
         assert ids["parallel"] == [0, 1]  # each of the two threads ran its share of the iterations
     assert len(list((tmp_path / "cache").rglob("*.nbi"))) == 2  # one cache entry per variant
+
+
+@pytest.mark.parametrize("kind", ["local_consensus", "mec_flood", "centralized_mec", "gnn"])
+@pytest.mark.parametrize("graph", ["fixed", "disk"])
+def test_threaded_engine_is_bit_for_bit_the_serial_one(kind: str, graph: str, monkeypatch) -> None:
+    """Whether an evaluation runs on threads (``PARALLEL_MIN_ROBOTS``: batches of 50 000 robots and more)
+    must not change a bit of any start's result: every controller kind's trajectory on a fixed and on a
+    disk graph, threaded against serial, in one process (numba compiles or loads each variant)."""
+    robot = RobotParams()
+    model = Path(__file__).resolve().parents[1] / "models" / "gnn_flood.npz"
+    args = ControllerArgs(robot=robot, robot_count=12, policy=str(model))
+    rng = np.random.default_rng(3)
+    poses = np.concatenate([rng.uniform(-2, 2, (9, 12, 2)), rng.uniform(-np.pi, np.pi, (9, 12, 1))], axis=-1)
+    links = {"adjacency": graphs.cycle(12)} if graph == "fixed" else {"disk_radius_m": 1.5}
+    numba.set_num_threads(2)
+    runs = []
+    for threshold in (1 << 62, 0):  # serial, then every kernel threaded
+        monkeypatch.setattr(kernels, "PARALLEL_MIN_ROBOTS", threshold)
+        sim = KinematicSim(robot, batched_controller(kind, args), 0.05, poses, **links)
+        runs.append(sim.rollout(40))
+    assert np.abs(runs[0][-1] - runs[0][0]).max() > 0.05  # the robots moved
+    np.testing.assert_array_equal(runs[1], runs[0])
