@@ -172,6 +172,23 @@ def _server_endpoint(cli: psutil.Process) -> tuple[str, str] | None:
     return None
 
 
+_USER_HZ = os.sysconf("SC_CLK_TCK")
+
+
+def main_thread_cpu_s(pid: int) -> float | None:
+    """User + system CPU seconds of the main thread of ``pid`` (``/proc/<pid>/task/<pid>/stat``: the
+    agent's Python; its other threads are Zenoh's), or None if it is gone."""
+    try:
+        fields = Path(f"/proc/{pid}/task/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    return (int(fields[11]) + int(fields[12])) / _USER_HZ
+
+
+def _main_cpu_s(pids: list[int]) -> float:
+    return sum(cpu for pid in pids if (cpu := main_thread_cpu_s(pid)) is not None)
+
+
 class Floor:
     """Bare agents (``bench/bare_agent.py``) beside the real ones of one run, and the CPU per tick of
     both sets over the same window of ticks (``/proc`` CPU times of every agent process, sampled when
@@ -239,8 +256,10 @@ class Floor:
         commands, real_commands = self.commands, self.real_commands
         real_cpu, bare_cpu = _cpu_s_by_pid(real), _cpu_s_by_pid(bare)
         real_cpu_s, bare_cpu_s = sum(real_cpu.values()), sum(bare_cpu.values())
+        real_main_s, bare_main_s = _main_cpu_s(sorted(real_cpu)), _main_cpu_s(sorted(bare_cpu))
         self.samples.append(
             {"real_cpu_s": real_cpu_s, "bare_cpu_s": bare_cpu_s, "bare_commands": commands}
+            | {"real_main_cpu_s": real_main_s, "bare_main_cpu_s": bare_main_s}
             | {"real_commands": real_commands, "real_agents": len(real_cpu), "bare_agents": len(bare_cpu)}
             | {"real_pids": sorted(real_cpu), "bare_pids": sorted(bare_cpu)}
         )
@@ -280,7 +299,15 @@ class Floor:
         bare_ticks = (last["bare_commands"] - first["bare_commands"]) / self.count
         real_ms = 1e3 * (last["real_cpu_s"] - first["real_cpu_s"]) / (ticks * self.count)
         bare_ms = 1e3 * (last["bare_cpu_s"] - first["bare_cpu_s"]) / (bare_ticks * self.count)
+        # the same CPU split by thread: the main thread (the agent's Python, Zenoh's recv and put in
+        # it) and the rest (Zenoh's own threads: receiving, sending, timers)
+        real_main_ms = 1e3 * (last["real_main_cpu_s"] - first["real_main_cpu_s"]) / (ticks * self.count)
+        bare_main_ms = 1e3 * (last["bare_main_cpu_s"] - first["bare_main_cpu_s"]) / (bare_ticks * self.count)
         return result | {
+            "real_main_thread_ms_per_tick": round(real_main_ms, 4),
+            "real_zenoh_threads_ms_per_tick": round(real_ms - real_main_ms, 4),
+            "bare_main_thread_ms_per_tick": round(bare_main_ms, 4),
+            "bare_zenoh_threads_ms_per_tick": round(bare_ms - bare_main_ms, 4),
             "window_ticks": round(ticks, 1),
             "bare_ticks_in_window": round(bare_ticks, 1),
             "real_agents": last["real_agents"],
@@ -565,13 +592,15 @@ def floor_markdown(report: dict) -> list[str]:
         " zenoh, msgpack and numpy only; the same pose key, neighbour count and payload sizes) runs beside"
         f" the real one, both at nice {settings.get('agent_nice', 0)}. CPU per tick: user + system time"
         " of every agent process (all threads, /proc) over"
-        " the same window of ticks (the middle 60%: start-up and exit excluded), per agent. 1-min load"
+        " the same window of ticks (the middle 60%: start-up and exit excluded), per agent, and split by"
+        " thread: the main thread (the agent's Python, with Zenoh's recv and put called from it) and"
+        " Zenoh's own threads (receiving, sending, timers). 1-min load"
         f" average {report.get('floor_load_avg_before')} before the first run (the ratio is the figure"
         " that holds on a loaded machine).",
         "",
         "| N | physics Hz | window ticks | real agent CPU ms/tick | bare agent CPU ms/tick | real / bare"
-        " | load before | load after |",
-        "|---|---|---|---|---|---|---|---|",
+        " | main thread real / bare ms | Zenoh threads real / bare ms | load before | load after |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in report["floor"]:
         f = r.get("floor", {})
@@ -583,7 +612,12 @@ def floor_markdown(report: dict) -> list[str]:
         lines.append(
             f"| {r['robots']} | {_fmt(r['physics_hz'], 0)} | {f['window_ticks']}"
             f" | {_fmt(f['real_cpu_ms_per_tick'], 3)} | {_fmt(f['bare_cpu_ms_per_tick'], 3)}"
-            f" | {_fmt(f['real_over_bare'])} | {_fmt(r['load_avg_1min_before'])}"
+            f" | {_fmt(f['real_over_bare'])}"
+            f" | {_fmt(f.get('real_main_thread_ms_per_tick'), 3)}"
+            f" / {_fmt(f.get('bare_main_thread_ms_per_tick'), 3)}"
+            f" | {_fmt(f.get('real_zenoh_threads_ms_per_tick'), 3)}"
+            f" / {_fmt(f.get('bare_zenoh_threads_ms_per_tick'), 3)}"
+            f" | {_fmt(r['load_avg_1min_before'])}"
             f" | {_fmt(r['load_avg_1min_after'])} |"
         )
     return lines

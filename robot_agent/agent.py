@@ -25,14 +25,17 @@ Nothing assumes the agent starts at tick 0: a restarted agent joins at the tick 
 gets (it does not wait for messages of earlier ticks), and a neighbour whose liveliness token comes
 back after the first tick is waited for only from the first message it sends again.
 
-Receiving costs no Python thread: the pose and the neighbours' messages are appended by a callback
-in Zenoh's own receiving thread to bounded deques (:class:`Inlet`: a full one drops its oldest and
-counts it as overflow), their liveliness arrives in Zenoh ring channels; the main thread reads them
-once per tick and sleeps on a pipe the pose callback writes to. A pose or message is accepted only
-inside the window the agent's own clock justifies (:mod:`swarm.runtime.ticks`); every rejection is counted by
-reason (invalid, old, future, overflow) in the record. Only the sim's liveliness has a callback
-(it fires once or twice a run); a stop request or the sim going away interrupts that ``recv`` with a
-signal (``run`` from the main thread; elsewhere the agent polls). In lockstep a neighbour's message
+Receiving runs no Python outside the main thread: the pose, the neighbours' messages and their
+liveliness arrive in Zenoh ring channels (:class:`Inlet`), which Zenoh's receiving threads fill
+without the GIL; the main thread blocks in the pose channel's ``recv`` and drains the others once
+per tick. (A Python callback in Zenoh's threads costs a GIL hand-off per sample: ~0.2 ms of a
+0.6 ms tick at N = 6, measured against the floor by ``bench/bench_runtime.py``.) A pose or message
+is accepted only inside the window the agent's own clock justifies (:mod:`swarm.runtime.ticks`);
+every rejection is counted by reason (invalid, old, future) in the record, and so is every drain
+that found a ring full (``ring_full``: samples may have been pushed out; 0: none was). Only the
+sim's liveliness has a callback (it fires once or twice a run); a stop request or the sim going
+away interrupts the pose ``recv`` with a signal (``run`` from the main thread; elsewhere the agent
+polls). In lockstep a neighbour's message
 of tick k-1 reaches the agent before its pose k (both pass the server's router in order), so the
 agent rarely waits; when it must, it polls the channels until the deadline.
 
@@ -44,12 +47,8 @@ subscribed to and received in ``<log-dir>/agent_<i>.json`` (once it is ready, an
 
 from __future__ import annotations
 
-import collections
-import contextlib
-import itertools
 import json
 import os
-import select
 import signal
 import socket
 import sys
@@ -84,8 +83,8 @@ INBOX_TICKS = 8
 its k-1 (more under a delay fault or a longer message age)."""
 
 POSE_RING = 16
-"""Poses buffered by the pose inlet; the newest is used, older ones count as skipped, and what a
-full inlet pushes out counts as overflow."""
+"""Poses buffered by the pose inlet; the newest is used, older ones count as skipped (a full ring
+pushes out its oldest: ``Inlet.ring_full``)."""
 
 MESSAGE_RING = 2 * INBOX_TICKS
 """Samples buffered per neighbour inlet (a ring: a slow agent drops, never stalls its session)."""
@@ -106,40 +105,49 @@ class _Wake(BaseException):
 
 
 class Inlet:
-    """The payloads of one subscription, appended by a callback in Zenoh's own receiving thread
-    (``indirect=False``: no Python thread hand-off) to a bounded deque that the main thread reads.
-    A full deque drops its oldest payload; ``overflow`` counts them (arrivals - taken - queued).
-    ``wake_fd``: the write end of a pipe, written once per arrival, for a reader that blocks."""
+    """The payloads of one subscription, in a Zenoh ring channel read by the main thread only.
 
-    __slots__ = ("_reads", "arrivals", "queue", "taken", "wake_fd")
+    Zenoh's receiving thread fills the ring without the GIL; a full ring drops its oldest sample
+    without telling anyone. What can be known is when that may have happened: a ring found empty
+    (``take`` gave None) and then drained of fewer than ``capacity`` samples before it was found
+    empty again dropped none in between (a drop leaves the ring full, and every sample then in it
+    is taken before it is empty again). ``ring_full`` counts the drains that reached ``capacity``
+    samples: 0 means nothing was pushed out. ``unread``: samples still queued when it was closed."""
 
-    def __init__(self, capacity: int, wake_fd: int | None = None):
-        self.queue: collections.deque[bytes] = collections.deque(maxlen=capacity)
-        self.arrivals = itertools.count()  # next() is atomic: Zenoh may call from several threads
-        self.taken = 0
-        self.wake_fd = wake_fd
-        self._reads = 0
+    __slots__ = ("_streak", "capacity", "ring_full", "subscriber", "taken", "unread")
 
-    def __call__(self, sample: zenoh.Sample) -> None:
-        self.queue.append(sample.payload.to_bytes())
-        next(self.arrivals)
-        if self.wake_fd is not None:
-            with contextlib.suppress(OSError):  # full (the reader finds the queue non-empty) or closed
-                os.write(self.wake_fd, b"\0")
+    def __init__(self, session: zenoh.Session, key: str, capacity: int):
+        self.capacity = capacity
+        self.subscriber = session.declare_subscriber(key, zenoh.handlers.RingChannel(capacity))
+        self.taken = self.ring_full = self.unread = 0
+        self._streak = 0  # samples taken since the ring was last found empty
 
     def take(self) -> bytes | None:
-        try:
-            payload = self.queue.popleft()
-        except IndexError:
+        """The oldest queued payload, or None (the ring is empty now)."""
+        sample = self.subscriber.try_recv()
+        if sample is None:
+            self._streak = 0
             return None
-        self.taken += 1
-        return payload
+        self._count()
+        return sample.payload.to_bytes()
 
-    def overflow(self) -> int:
-        """Payloads the full deque dropped so far (main thread only)."""
-        arrived = next(self.arrivals) - self._reads  # reading the count advances it: keep track
-        self._reads += 1
-        return max(0, arrived - self.taken - len(self.queue))
+    def recv(self) -> bytes:
+        """Block for the next payload (a signal handler that raises interrupts the wait)."""
+        sample = self.subscriber.recv()
+        self._count()
+        return sample.payload.to_bytes()
+
+    def _count(self) -> None:
+        self.taken += 1
+        self._streak += 1
+        if self._streak == self.capacity:
+            self.ring_full += 1
+
+    def undeclare(self) -> None:
+        """Count what is still queued (``unread``), then undeclare the subscriber."""
+        while self.subscriber.try_recv() is not None:
+            self.unread += 1
+        self.subscriber.undeclare()
 
 
 @dataclass
@@ -205,9 +213,6 @@ class RobotAgent:
         self._inbox: dict[int, dict[int, Sequence[float]]] = {}  # neighbour -> tick -> message
         self._msg_inlets: dict[int, Inlet] = {}
         self._pose_inlet: Inlet | None = None
-        self._wake_r, self._wake_w = os.pipe()
-        os.set_blocking(self._wake_r, False)
-        os.set_blocking(self._wake_w, False)
         self._window = PoseWindow(1.0)
         self._newest_message_tick: dict[int, int] = {}  # neighbour -> tick of its newest message accepted
         self._alive_subs: dict[int, zenoh.Subscriber] = {}
@@ -297,24 +302,19 @@ class RobotAgent:
                     return payload
                 time.sleep(0.001)
             return None
-        while True:
-            payload = inlet.take()
-            if payload is not None:
-                return payload
+        payload = inlet.take()
+        if payload is not None:
+            return payload
+        try:
             try:
-                try:
-                    self._blocking = True  # before the checks: a signal from here on interrupts select
-                    if self._ended():
-                        return None
-                    if inlet.queue:
-                        continue
-                    select.select([self._wake_r], [], [])
-                finally:
-                    self._blocking = False
-            except _Wake:
-                return None
-            with contextlib.suppress(BlockingIOError):
-                os.read(self._wake_r, 65536)  # one byte per arrival: drop what is there
+                self._blocking = True  # before the checks: a signal from here on interrupts the wait
+                if self._ended():
+                    return None
+                return inlet.recv()  # Zenoh's recv runs the signal handlers while it waits
+            finally:
+                self._blocking = False
+        except _Wake:
+            return None
 
     # ------------------------------------------------------------------ channels (main thread)
     def _drain_liveliness(self) -> None:
@@ -542,15 +542,15 @@ class RobotAgent:
             neighbours=list(config.neighbours),
             config_s=round(time.perf_counter() - self._started_s, 4),
         )
-        ring, inline = zenoh.handlers.RingChannel, zenoh.handlers.Callback
+        ring = zenoh.handlers.RingChannel
         entities: list[Any] = [sim_sub]
-        pose_inlet = self._pose_inlet = Inlet(POSE_RING, self._wake_w)
-        entities.append(session.declare_subscriber(keys.pose(self.robot), inline(pose_inlet, indirect=False)))
+        pose_inlet = self._pose_inlet = Inlet(session, keys.pose(self.robot), POSE_RING)
+        entities.append(pose_inlet)  # undeclared last: it counts what is unread first
         record["subscriptions"].append(keys.pose(self.robot))
         for j in config.neighbours:
             self._inbox[j] = {}
-            self._msg_inlets[j] = inlet = Inlet(MESSAGE_RING)
-            entities.append(session.declare_subscriber(keys.msg(j), inline(inlet, indirect=False)))
+            self._msg_inlets[j] = inlet = Inlet(session, keys.msg(j), MESSAGE_RING)
+            entities.append(inlet)
             record["subscriptions"].append(keys.msg(j))
         for j in config.neighbours:
             self._alive_subs[j] = session.liveliness().declare_subscriber(
@@ -654,8 +654,8 @@ class RobotAgent:
                 "invalid": counters.poses_invalid,
                 "old": counters.poses_old,
                 "future": window.future + (window.candidate is not None),  # a pending candidate too
-                "overflow": pose_inlet.overflow() if pose_inlet is not None else 0,
-                "unread": len(pose_inlet.queue) if pose_inlet is not None else 0,  # came after the last tick
+                "ring_full": pose_inlet.ring_full if pose_inlet is not None else 0,
+                "unread": pose_inlet.unread if pose_inlet is not None else 0,  # came after the last tick
                 "skipped": counters.poses_skipped + window.confirmed,
                 "jumps": window.confirmed,  # beyond the window, confirmed by the next pose: followed
             },
@@ -664,8 +664,8 @@ class RobotAgent:
                 "invalid": counters.messages_invalid,
                 "old": counters.messages_old,
                 "future": counters.messages_future,
-                "overflow": sum(inlet.overflow() for inlet in self._msg_inlets.values()),
-                "unread": sum(len(inlet.queue) for inlet in self._msg_inlets.values()),
+                "ring_full": sum(inlet.ring_full for inlet in self._msg_inlets.values()),
+                "unread": sum(inlet.unread for inlet in self._msg_inlets.values()),
                 "lost": counters.messages_lost,
                 "late": counters.messages_late,
                 "dropped_by_fault": counters.messages_dropped_by_fault,

@@ -39,3 +39,8 @@ def test_bare_agents_shadow_every_tick_with_the_real_payloads(tmp_path: Path) ->
     most_bare_ticks = max(r["ticks"] for r in records)
     assert 0 < measured["bare_ticks_in_window"] <= most_bare_ticks
     assert measured["real_cpu_ms_per_tick"] > 0 and measured["bare_cpu_ms_per_tick"] > 0
+    # the split by thread lies within each set's whole (the main thread's share of the same /proc window)
+    for agents in ("real", "bare"):
+        main_ms = measured[f"{agents}_main_thread_ms_per_tick"]
+        assert 0 <= main_ms <= measured[f"{agents}_cpu_ms_per_tick"], measured
+        assert measured[f"{agents}_zenoh_threads_ms_per_tick"] >= 0, measured

@@ -504,8 +504,9 @@ def runtime_summary(
 def rejected_counts(stats: dict, records: dict[int, dict]) -> dict:
     """Samples dropped on receipt, per reason and stream: ``invalid`` (did not decode: swarm.runtime.wire),
     ``old`` (tick not newer than the newest accepted from that sender), ``future`` (tick beyond the
-    receiver's window: swarm.runtime.ticks), ``overflow`` (pushed out of a full receive buffer before it was
-    read; the server's commands go through a callback: none); and exceptions caught in callbacks."""
+    receiver's window: swarm.runtime.ticks), ``ring_full`` (drains of an agent's receive ring that found it
+    full: samples may have been pushed out unread; 0: none was; the server's commands go through a
+    callback: none); and exceptions caught in callbacks."""
 
     def total(stream: str, kind: str) -> int:
         return sum(int(record.get(stream, {}).get(kind, 0)) for record in records.values())
@@ -516,7 +517,7 @@ def rejected_counts(stats: dict, records: dict[int, dict]) -> dict:
             "messages": total("messages", reason),
             "commands": int(stats.get(f"{reason}_commands", 0)),
         }
-        for reason in ("invalid", "old", "future", "overflow")
+        for reason in ("invalid", "old", "future", "ring_full")
     }
     counts["callback_errors"] = int(stats.get("callback_errors", 0)) + sum(
         int(record.get("callback_errors", 0)) for record in records.values()
