@@ -44,3 +44,12 @@ def test_bare_agents_shadow_every_tick_with_the_real_payloads(tmp_path: Path) ->
         main_ms = measured[f"{agents}_main_thread_ms_per_tick"]
         assert 0 <= main_ms <= measured[f"{agents}_cpu_ms_per_tick"], measured
         assert measured[f"{agents}_zenoh_threads_ms_per_tick"] >= 0, measured
+
+
+def test_floor_ab_refuses_a_base_that_is_no_commit(tmp_path: Path, capsys) -> None:
+    import floor_ab
+
+    assert floor_ab.main(["--base", "no-such-revision-xyz", "--out", str(tmp_path), "--quiet"]) == 2
+    error = capsys.readouterr().err.strip()
+    assert error.count("\n") == 0 and "--base" in error and "no-such-revision-xyz" in error
+    assert not (tmp_path / "floor_ab.json").exists()
