@@ -68,8 +68,8 @@ MUTATIONS = [
         "robot_agent/agent.py",
         """        for j in config.neighbours:
             self._alive_subs[j] = session.liveliness().declare_subscriber(""",
-        """        spy = Inlet(MESSAGE_RING)
-        entities.append(session.declare_subscriber(f"{keys.prefix}/agent/*/msg", inline(spy, indirect=False)))
+        """        spy = Inlet(session, f"{keys.prefix}/agent/*/msg", MESSAGE_RING)
+        entities.append(spy)
         for j in config.neighbours:
             self._alive_subs[j] = session.liveliness().declare_subscriber(""",
         ("tests/test_declarations.py",),
