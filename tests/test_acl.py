@@ -30,6 +30,7 @@ PROJECT_ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(PROJECT_ROOT))
 
 import outside  # noqa: E402
+import swarm_run  # noqa: E402
 
 from swarm.core.graphs import line  # noqa: E402
 from swarm.runtime import acl, wire  # noqa: E402 (after the path, for the script)
@@ -175,6 +176,7 @@ def rogue(endpoint: str, run: str, robot: int, count: int, credentials: str, out
         own_pose = listener.declare_subscriber(
             keys.pose(robot), zenoh.handlers.RingChannel(8), allowed_origin=remote
         )
+
         def config_keys(i: int, timeout_s: float) -> list[str]:
             return [
                 str(reply.ok.key_expr)
@@ -236,13 +238,7 @@ def test_acl_run_converges_and_a_rogue_robot_reaches_only_its_neighbourhood(tmp_
     scenario.write_text(yaml.safe_dump(data))
     steps = round(data["sim"]["duration"] / data["sim"]["control_period"])
     out = tmp_path / "out"
-    run = subprocess.Popen(
-        [sys.executable, "-m", "swarm.cli", "run", str(scenario), "--out", str(out), "--quiet"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        cwd=PROJECT_ROOT,
-    )
+    run = swarm_run.start(scenario, out)
     rogue_process = None
     try:
         # the rogue starts beside the run (it reads the server's address from its log): connected

@@ -16,6 +16,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import swarm_run
 import yaml
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
@@ -39,13 +40,7 @@ def _scenario(tmp_path: Path, acl: bool) -> Path:
 
 
 def _run(scenario: Path, out: Path, forge: list[str] | None, credentials: bool = False) -> tuple[dict, list]:
-    run = subprocess.Popen(
-        [sys.executable, "-m", "swarm.cli", "run", str(scenario), "--out", str(out), "--quiet"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        cwd=PROJECT_ROOT,
-    )
+    run = swarm_run.start(scenario, out)
     sent = None
     try:
         if forge is not None:  # started at once, beside the run: it connects while the agents start

@@ -37,6 +37,7 @@ PROJECT_ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(PROJECT_ROOT / "tests"))
 
 import outside  # noqa: E402 (no project code: the key space and payloads as documented)
+import swarm_run  # noqa: E402
 
 TARGET_SAMPLES = 10_000
 OLD_TICKS = range(0, 6)
@@ -235,13 +236,7 @@ def test_a_run_survives_ten_thousand_malformed_replayed_and_forward_dated_sample
     scenario = tmp_path / "fuzz.yaml"
     scenario.write_text(yaml.safe_dump(data))
     out = tmp_path / "out"
-    run = subprocess.Popen(
-        [sys.executable, "-m", "swarm.cli", "run", str(scenario), "--out", str(out), "--quiet"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        cwd=PROJECT_ROOT,
-    )
+    run = swarm_run.start(scenario, out)
     try:  # the fuzzer starts beside the run (the server's address from its log): it is there from tick 10
         sent_path = tmp_path / "sent.json"
         fuzzer = subprocess.run(

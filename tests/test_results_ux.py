@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import swarm_run
 import yaml
 from test_runtime import max_pairwise_of
 
@@ -447,14 +448,7 @@ def test_benchmarks_write_to_out_and_leave_the_committed_results_alone(tmp_path)
 def test_an_interrupted_kinematic_run_ends_with_partial_results(tmp_path):
     scenario = short_scenario(tmp_path, THESIS / "line-local_consensus.yaml", duration=3000.0)
     out = tmp_path / "out"
-    run = subprocess.Popen(
-        [sys.executable, "-m", "swarm.cli", "run", str(scenario), "--out", str(out), "--quiet"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        cwd=PROJECT_ROOT,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
-    )
+    run = swarm_run.start(scenario, out, interruptible=True)
     trajectory = out / "trajectory.jsonl"
     deadline = time.monotonic() + 120
     while not (trajectory.exists() and trajectory.read_bytes().count(b"\n") >= 50):

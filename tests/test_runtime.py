@@ -12,14 +12,13 @@ import contextlib
 import json
 import os
 import signal
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import psutil
 import pytest
+import swarm_run
 import yaml
 from PIL import Image
 
@@ -61,16 +60,7 @@ class Run:
 
     def __init__(self, scenario: Path, out: Path, *options: str):
         self.out = out
-        self.process = subprocess.Popen(
-            [sys.executable, "-m", "swarm.cli", "run", str(scenario), "--out", str(out), "--quiet", *options],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
-            text=True,
-            cwd=PROJECT_ROOT,
-            # as from a terminal: a suite started in the background (`cmd &`) ignores SIGINT, and an
-            # ignored signal is inherited, so the Ctrl-C test would see nothing
-            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
-        )
+        self.process = swarm_run.start(scenario, out, *options, interruptible=True)
         self.seen: dict[int, float] = {}  # pid -> create time, of every descendant ever seen
 
     def watch(self) -> None:
