@@ -193,7 +193,9 @@ class Floor:
     """Bare agents (``bench/bare_agent.py``) beside the real ones of one run, and the CPU per tick of
     both sets over the same window of ticks (``/proc`` CPU times of every agent process, sampled when
     the real agents have sent ``start_tick`` commands each, once every bare agent is up, and
-    ``end_tick``: start-up and exit excluded; each set's ticks are the commands it sent meanwhile)."""
+    ``end_tick``, or as many ticks after the opening as from ``start_tick`` to ``end_tick`` where the
+    bare agents came up late: start-up and exit excluded; each set's ticks are the commands it sent
+    meanwhile)."""
 
     def __init__(self, count: int, log_dir: Path, start_tick: int, end_tick: int, nice: int = AGENT_NICE):
         self.count, self.log_dir, self.nice = count, log_dir, nice
@@ -205,6 +207,7 @@ class Floor:
         self.real_commands = 0  # the real agents' commands, counted the same way: the window's tick clock
         self.samples: list[dict] = []
         self._ready = False
+        self._end_tick = end_tick
 
     def start(self, endpoint: str, run: str) -> None:
         """Start the bare agents (they retry until the sim's router listens), then connect a consumer of
@@ -247,7 +250,7 @@ class Floor:
         if self.session is None or len(self.samples) == 2:
             return
         ticks = self.real_commands / self.count
-        if ticks < (self.start_tick if not self.samples else self.end_tick):
+        if ticks < (self.start_tick if not self.samples else self._end_tick):
             return
         if not self.samples and not self._bare_ready():
             return  # the window opens once the bare agents are up too
@@ -257,6 +260,8 @@ class Floor:
         real_cpu, bare_cpu = _cpu_s_by_pid(real), _cpu_s_by_pid(bare)
         real_cpu_s, bare_cpu_s = sum(real_cpu.values()), sum(bare_cpu.values())
         real_main_s, bare_main_s = _main_cpu_s(sorted(real_cpu)), _main_cpu_s(sorted(bare_cpu))
+        if not self.samples:  # a window opened late (bare agents slow to start) keeps its length
+            self._end_tick = max(self.end_tick, ticks + self.end_tick - self.start_tick)
         self.samples.append(
             {"real_cpu_s": real_cpu_s, "bare_cpu_s": bare_cpu_s, "bare_commands": commands}
             | {"real_main_cpu_s": real_main_s, "bare_main_cpu_s": bare_main_s}
