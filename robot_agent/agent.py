@@ -54,7 +54,7 @@ import socket
 import sys
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -191,6 +191,11 @@ def _stats_ms(samples_s: list[float]) -> dict[str, float | None]:
     values = np.asarray(samples_s) * 1e3
     p50, p99 = np.percentile(values, [50, 99])
     return {"p50": round(float(p50), 4), "p99": round(float(p99), 4), "max": round(float(values.max()), 4)}
+
+
+def _came_under_faults(box: dict, faults: LinkFaults, sender: int, me: int) -> Callable[[int], bool]:
+    """Whether the message of tick k from ``sender`` is in ``box`` and the link faults let it through."""
+    return lambda k: k in box and faults.heard(sender, me, k)
 
 
 class RobotAgent:
@@ -590,6 +595,7 @@ class RobotAgent:
         act_floats = getattr(controller, "act_floats", None)
         faults, me, max_age = self._faults, self.robot, self._max_age
         no_faults = faults.empty
+        boxes = [(j, self._inbox[j]) for j in neighbours]  # each neighbour's inbox, kept for the run
         while True:
             pose = self._next_pose(pose_inlet)
             if pose is None:
@@ -607,10 +613,13 @@ class RobotAgent:
                 counters.ticks_waited += 1
             compute_start_s = time.perf_counter()
             heard, messages = [], []
-            for j in neighbours:
-                box = self._inbox[j]
-                delay = 0 if no_faults else faults.delay_ticks(j, me, tick)
-                came = lambda k, box=box, j=j: k in box and (no_faults or faults.heard(j, me, k))  # noqa: E731
+            came: Callable[[int], bool]
+            for j, box in boxes:
+                if no_faults:
+                    delay, came = 0, box.__contains__
+                else:
+                    delay = faults.delay_ticks(j, me, tick)
+                    came = _came_under_faults(box, faults, j, me)
                 sent = select_message(tick, delay, max_age, came)  # faults.py's rule, KinematicSim's too
                 values = None if sent is None else box[sent]
                 needed = tick - 1 - delay  # what the timing names; older ones only stand in for it
@@ -626,9 +635,10 @@ class RobotAgent:
                     messages.append(values)
                     counters.messages_delayed_by_fault += delay > 0
             oldest = tick - self._keep_ticks
-            for box in self._inbox.values():  # drop what can no longer be used
-                for k in [k for k in box if k < oldest]:
-                    del box[k]
+            for _, box in boxes:  # drop what can no longer be used
+                if box and min(box) < oldest:
+                    for k in [k for k in box if k < oldest]:
+                        del box[k]
             weights = [weight_of[j] for j in heard]
             if act_floats is not None:  # plain floats, no numpy: most of an agent's Python time otherwise
                 u_world, message = act_floats(pose.x_m, pose.y_m, pose.theta_rad, messages, weights)

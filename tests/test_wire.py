@@ -355,3 +355,66 @@ def test_session_config_takes_more_settings():
         "client", ["tcp/127.0.0.1:7000"], settings={"transport/auth/usrpwd": {"user": "u", "password": "p"}}
     )
     assert json.loads(config.get_json("transport/auth/usrpwd/user")) == "u"
+
+
+# ----------------------------------------------------------------------------- fixed-layout fast paths
+# decode_pose and decode_message_values take the sim's and the agents' own byte layouts without
+# msgpack; whatever bytes they get, they must give what the msgpack path gives.
+
+edge_floats = st.one_of(
+    finite,
+    st.sampled_from(
+        [0.0, -0.0, math.nan, math.inf, -math.inf, 1e9, -1e9, 1.0000001e9, 1e5, -1e5, 4 * math.pi]
+    ),
+    st.floats(allow_nan=True, allow_infinity=True),
+)
+edge_ticks = st.one_of(
+    ticks, st.sampled_from([0, 127, 128, 255, 256, 2**16, 2**32, wire.MAX_TICK, wire.MAX_TICK + 1])
+)
+
+
+def mutated(data: bytes, draw_edits: list[tuple[int, int]]) -> bytes:
+    out = bytearray(data)
+    for at, value in draw_edits:
+        if out:
+            out[at % len(out)] = value
+    return bytes(out)
+
+
+edits = st.lists(st.tuples(st.integers(0, 10_000), st.integers(0, 255)), max_size=3)
+
+
+@settings(max_examples=400, suppress_health_check=[HealthCheck.too_slow])
+@given(edge_ticks, edge_floats, edge_floats, edge_floats, edge_floats, edits, st.integers(-2, 2))
+def test_fixed_pose_layout_decodes_as_msgpack_does(tick, time_s, x, y, theta, changes, cut):
+    buffer = wire.PoseEncoder(1).encode(min(tick, 2**64 - 1), time_s, [(x, y, theta)])[0]
+    data = mutated(bytes(buffer), changes)
+    data = data[: len(data) + cut] if cut < 0 else data + b"\x00" * cut
+    assert wire.decode_pose(data) == wire._pose_msgpack(data)
+
+
+@settings(max_examples=400, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    edge_ticks,
+    st.lists(edge_floats, max_size=33),
+    edits,
+    st.integers(-2, 2),
+    st.sampled_from([None, 1, 2, 3]),
+)
+def test_fixed_message_layout_decodes_as_msgpack_does(tick, values, changes, cut, dim):
+    data = mutated(wire.encode_message(tick, values), changes)
+    data = data[: len(data) + cut] if cut < 0 else data + b"\x00" * cut
+    fast, general = wire.decode_message_values(data, dim), wire._message_values_msgpack(data, dim)
+    assert (fast is None) == (general is None)
+    if fast is not None:
+        assert fast[0] == general[0] and list(fast[1]) == list(general[1])
+
+
+def test_fixed_layouts_take_the_fast_path():
+    """The layouts the sim and the agents send are the ones the fast paths take (else they would
+    save nothing)."""
+    pose = bytes(wire.PoseEncoder(1).encode(7, 0.35, [(1.0, -2.0, 0.5)])[0])
+    assert wire._fixed_pose(pose) == wire.Pose(7, 0.35, 1.0, -2.0, 0.5)
+    for tick in (0, 200, 70_000, 2**33):
+        message = wire.encode_message(tick, (0.25, -1.5))
+        assert wire._fixed_message(message, 2) == (tick, (0.25, -1.5))

@@ -200,6 +200,9 @@ class AgentConfig:
     policy: bytes | None = None
 
 
+_packb = msgpack.packb
+
+
 def _pack(body: dict[str, Any]) -> bytes:
     return msgpack.packb({"v": SCHEMA_VERSION, **body}, use_bin_type=True)
 
@@ -278,7 +281,33 @@ class PoseEncoder:
         return self.buffers
 
 
+_POSE_SIZE = PoseEncoder._LAYOUT.size
+
+
+def _fixed_pose(data: bytes) -> Pose | None:
+    """:class:`PoseEncoder`'s layout, checked byte by byte with :func:`decode_pose`'s bounds; None
+    for anything else (the general decoder then decides: this only ever accepts what it accepts)."""
+    try:
+        p0, tick, p1, t, p2, x, p3, y, p4, th = PoseEncoder._LAYOUT.unpack(data)
+    except (struct.error, TypeError):
+        return None
+    if (p0, p1, p2, p3, p4) != PoseEncoder._PARTS or tick > MAX_TICK:
+        return None
+    if not (0 <= t <= MAX_TIME_S and abs(x) <= MAX_COORD_M and abs(y) <= MAX_COORD_M):  # NaN fails
+        return None
+    if not abs(th) <= MAX_ANGLE_RAD:
+        return None
+    return Pose(tick, t, x, y, th)
+
+
 def decode_pose(data: bytes) -> Pose | None:
+    if len(data) == _POSE_SIZE and (pose := _fixed_pose(data)) is not None:
+        return pose  # the sim's own layout: no msgpack map, no bounds dict
+    return _pose_msgpack(data)
+
+
+def _pose_msgpack(data: bytes) -> Pose | None:
+    """:func:`decode_pose` of any msgpack layout."""
     body = _unpack(data, MAX_SMALL_PAYLOAD)
     if body is None:
         return None
@@ -290,8 +319,10 @@ def decode_pose(data: bytes) -> Pose | None:
 
 
 def encode_command(tick: int, wheels_mps: Sequence[float]) -> bytes:
-    left, right = (float(value) for value in wheels_mps)
-    return _pack({"k": int(tick), "l": left, "r": right})
+    left, right = wheels_mps
+    return _packb(
+        {"v": SCHEMA_VERSION, "k": int(tick), "l": float(left), "r": float(right)}, use_bin_type=True
+    )
 
 
 def decode_command(data: bytes) -> Command | None:
@@ -315,12 +346,50 @@ def encode_message(tick: int, values: np.ndarray | Sequence[float]) -> bytes:
         raw = struct.pack(f"<{len(values)}d", *values)
     else:
         raw = np.ascontiguousarray(values, dtype="<f8").reshape(-1).tobytes()
-    return _pack({"k": int(tick), "m": raw})
+    return _packb({"v": SCHEMA_VERSION, "k": int(tick), "m": raw}, use_bin_type=True)
+
+
+_MESSAGE_HEAD = bytes.fromhex("83a17601a16b")  # {"v": 1, "k": ... as encode_message packs it
+_MESSAGE_BIN = bytes.fromhex("a16dc4")  # "m": bin 8
+_UINT_BYTES = {0xCC: 1, 0xCD: 2, 0xCE: 4, 0xCF: 8}
+_FLOATS = [struct.Struct(f"<{n}d") for n in range(32)]
+
+
+def _fixed_message(data: bytes, dim: int | None) -> tuple[int, tuple[float, ...]] | None:
+    """:func:`encode_message`'s layout (a vector of up to 31 floats), checked byte by byte with
+    :func:`decode_message_values`'s bounds; None for anything else (the general decoder then
+    decides: this only ever accepts what it accepts, with the same result)."""
+    first = data[6]
+    if first < 0x80:  # positive fixint
+        tick, at = first, 7
+    elif (width := _UINT_BYTES.get(first)) is not None:
+        at = 7 + width
+        tick = int.from_bytes(data[7:at], "big")
+    else:
+        return None
+    size_bytes = data[at + 3] if len(data) > at + 3 else -1
+    if tick > MAX_TICK or data[at : at + 3] != _MESSAGE_BIN or len(data) != at + 4 + size_bytes:
+        return None
+    size, rest = divmod(size_bytes, 8)
+    if rest or (dim is not None and size != dim):
+        return None
+    floats = _FLOATS[size].unpack_from(data, at + 4)
+    for value in floats:
+        if not abs(value) <= MAX_MESSAGE_ABS:  # NaN fails the comparison too
+            return None
+    return tick, floats
 
 
 def decode_message_values(data: bytes, dim: int | None = None) -> tuple[int, Sequence[float]] | None:
     """``(tick, values)`` of a message, values a tuple of floats for short vectors (else an array);
     None when malformed or, with ``dim``, of another length."""
+    if data[:6] == _MESSAGE_HEAD and len(data) > 6 and (fast := _fixed_message(data, dim)) is not None:
+        return fast  # a robot agent's own layout: no msgpack map
+    return _message_values_msgpack(data, dim)
+
+
+def _message_values_msgpack(data: bytes, dim: int | None) -> tuple[int, Sequence[float]] | None:
+    """:func:`decode_message_values` of any msgpack layout."""
     body = _unpack(data, MAX_MESSAGE_PAYLOAD)
     if body is None:
         return None
