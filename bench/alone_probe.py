@@ -227,11 +227,14 @@ def ab(args: argparse.Namespace, command: str) -> int:
             child = [sys.executable, str(tree / "bench" / "alone_probe.py"), "--count", str(args.count)]
             child += ["--duration", str(args.duration), "--mode", args.mode, "--repeats", "1"]
             child += ["--agents", *args.agents, "--out", str(out)]
-            subprocess.run(child, cwd=tree, env=dict(os.environ, PYTHONPATH=str(tree)), capture_output=True)
-            rows = json.loads((out / "alone_probe.json").read_text())["results"] if out.exists() else []
+            env = dict(os.environ, PYTHONPATH=str(tree))
+            done = subprocess.run(child, cwd=tree, env=env, capture_output=True, text=True)
+            found = out / "alone_probe.json"
+            rows = json.loads(found.read_text())["results"] if found.exists() else []
             label = base.stdout.strip() if which == "base" else f"{head}+"
+            why = f"exit {done.returncode}: {done.stderr.strip()[-300:]}"
             results += [{"commit": label} | row for row in rows] or [
-                {"commit": label, "agents_kind": "-", "error": "no result"}
+                {"commit": label, "agents_kind": "-", "error": why}
             ]
             print(json.dumps(results[-len(rows or [0]) :]), flush=True)
     finally:
