@@ -148,7 +148,7 @@ class Probe:
                 phases[name].append(b - a)
         server_ends = [
             stats.get("cpu_ready_s", 0.0),
-            *(cpu_s(s) for _, _, s in self.snaps),
+            *(cpu_s(s) for _, _, s in self.snaps if s),  # the server may be gone at the last tick
             stats.get("cpu_s", 0.0),
         ]
         return {
@@ -156,11 +156,16 @@ class Probe:
             "agents": len(common),
             "agent_per_tick": dict(sorted(agent.items())),
             "server_per_tick": dict(sorted(server.items())),
-            "agents_in_phases": len(phases["window"]),
-            "agent_phase_cpu_ms": {n: round(1e3 * sum(v) / len(v), 1) for n, v in phases.items()},
+            "agents_in_phases": len(phases.get("window", [])),
+            "agent_phase_cpu_ms": {n: round(1e3 * sum(v) / len(v), 1) for n, v in phases.items() if v},
             "server_phase_cpu_ms": {
                 n: round(1e3 * (b - a), 1)
-                for n, a, b in zip(names, server_ends, server_ends[1:], strict=False)
+                for n, a, b in zip(
+                    PHASES if len(server_ends) == 6 else [*PHASES[:3], "window_to_exit"],
+                    server_ends,
+                    server_ends[1:],
+                    strict=False,
+                )
             },
             "marks_lines": [s[0] for s in self.snaps],
         }
