@@ -294,3 +294,13 @@ def test_component_results_two_groups_and_isolated_robot():
 def test_component_results_rejects_unknown_metric():
     with pytest.raises(ValueError, match="unknown metric"):
         component_results(np.zeros(1), np.zeros((1, 2, 2)), [[0, 1]], "diameter", 0.2)
+
+
+def test_enclosing_circle_of_a_tiny_swarm_far_from_the_origin():
+    """Found by the invariance property above: two distinct points 1e-5 m apart (one repeated ten
+    times) have radius 5e-6 m wherever they are; shifted 2 m, rounding once made a duplicate look
+    outside its circle and the radius came out 1e-5."""
+    points = np.full((11, 2), 1e-5)
+    points[0] = [0.0, 1e-5]
+    for shift in (0.0, 2.0, 1e3):
+        assert minimum_enclosing_circle(points + shift)[1] == pytest.approx(5e-6, rel=1e-6)

@@ -89,7 +89,9 @@ def minimum_enclosing_circle(points: np.ndarray) -> tuple[np.ndarray, float]:
     order = np.random.default_rng(0).permutation(len(points))
     pts: list[tuple[float, float]] = [(float(x), float(y)) for x, y in points[order]]
     scale = float(np.max(np.abs(points - points[0]))) or 1.0
-    tol = 1e-12 * scale
+    # relative to the swarm's extent, plus the rounding of its coordinates: points 1e-5 m apart at 2 m
+    # from the origin once judged a duplicate "outside" its circle by 4e-16 (a circle twice too big)
+    tol = 1e-12 * scale + 1e-14 * float(np.max(np.abs(points)))
 
     def outside(p: tuple[float, float], circle: tuple[float, float, float]) -> bool:
         return math.hypot(p[0] - circle[0], p[1] - circle[1]) > circle[2] + tol
