@@ -34,6 +34,7 @@ from pathlib import Path
 import psutil
 import yaml
 from _output import add_output_arguments, output_dir
+from _worktree import ROOT, base_worktree, short_commit
 from bench_runtime import run_once, scenario_data
 from runtime_limit import run_standin
 
@@ -171,7 +172,6 @@ class Probe:
         }
 
 
-ROOT = Path(__file__).resolve().parent.parent
 PHASES = ("ready_to_first", "first_to_window", "window", "window_to_last", "last_to_exit")
 
 
@@ -210,22 +210,14 @@ def markdown(report: dict) -> str:
 
 def ab(args: argparse.Namespace, command: str) -> int:
     """``--base``: alternate this script's runs of the base commit and of this working tree."""
-    rev = ["git", "-C", str(ROOT), "rev-parse", "--short"]
-    base = subprocess.run([*rev, args.base], capture_output=True, text=True)
-    if base.returncode != 0:
+    base, head = short_commit(args.base), short_commit("HEAD")
+    if base is None:
         print(f"alone_probe: error: --base {args.base!r}: not a commit of this repository", file=sys.stderr)
         return 2
-    head = subprocess.run([*rev, "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
-    work = Path(tempfile.mkdtemp(prefix="alone-ab-"))
-    base_tree = work / "base"
-    subprocess.run(
-        ["git", "-C", str(ROOT), "worktree", "add", "--detach", str(base_tree), args.base],
-        check=True,
-        capture_output=True,
-    )
-    shutil.copy(Path(__file__), base_tree / "bench" / "alone_probe.py")
     results = []
-    try:
+    with base_worktree(args.base, "alone-ab-") as base_tree:
+        work = base_tree.parent
+        shutil.copy(Path(__file__), base_tree / "bench" / "alone_probe.py")
         for i, which in enumerate([w for _ in range(args.repeats) for w in ("base", "head")]):
             tree = base_tree if which == "base" else ROOT
             out = work / f"run{i}"
@@ -236,15 +228,13 @@ def ab(args: argparse.Namespace, command: str) -> int:
             done = subprocess.run(child, cwd=tree, env=env, capture_output=True, text=True)
             found = out / "alone_probe.json"
             rows = json.loads(found.read_text())["results"] if found.exists() else []
-            label = base.stdout.strip() if which == "base" else f"{head}+"
+            label = base if which == "base" else f"{head}+"
             why = f"exit {done.returncode}: {done.stderr.strip()[-300:]}"
             results += [{"commit": label} | row for row in rows] or [
                 {"commit": label, "agents_kind": "-", "error": why}
             ]
             print(json.dumps(results[-len(rows or [0]) :]), flush=True)
-    finally:
-        subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(base_tree)], check=False)
-    report = {"command": command, "count": args.count, "mode": args.mode, "base": base.stdout.strip()}
+    report = {"command": command, "count": args.count, "mode": args.mode, "base": base}
     report |= {"head": f"{head}+ (working tree)", "results": results}
     (output_dir(args) / "alone_probe.json").write_text(json.dumps(report, indent=1) + "\n")
     (output_dir(args) / "alone_probe.md").write_text(markdown(report))

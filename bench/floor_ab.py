@@ -17,12 +17,10 @@ import json
 import os
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 from _output import add_output_arguments, output_dir, progress
-
-ROOT = Path(__file__).resolve().parent.parent
+from _worktree import ROOT, base_worktree, short_commit
 
 
 def floor_run(tree: Path, count: int, out: Path) -> dict:
@@ -80,29 +78,20 @@ def main(argv: list[str] | None = None) -> int:
     add_output_arguments(parser)
     args = parser.parse_args(argv)
     out = output_dir(args)
-    rev = ["git", "-C", str(ROOT), "rev-parse", "--short"]
-    base = subprocess.run([*rev, args.base], capture_output=True, text=True)
-    if base.returncode != 0:
+    base, head = short_commit(args.base), short_commit("HEAD")
+    if base is None:
         print(f"floor_ab: error: --base {args.base!r}: not a commit of this repository", file=sys.stderr)
         return 2
-    head = subprocess.run([*rev, "HEAD"], capture_output=True, text=True, check=True).stdout.strip()
-    work = Path(tempfile.mkdtemp(prefix="floor-ab-"))
-    base_tree = work / "base"
-    subprocess.run(
-        ["git", "-C", str(ROOT), "worktree", "add", "--detach", str(base_tree), args.base],
-        check=True,
-        capture_output=True,
-    )
     runs = []
     plan = [(n, which) for n in args.counts for _ in range(args.pairs) for which in ("base", "head")]
-    try:
+    with base_worktree(args.base, "floor-ab-") as base_tree:
         for i, (count, which) in enumerate(progress(plan, args=args, desc="floor_ab", unit="run")):
             tree = base_tree if which == "base" else ROOT
-            runs.append({"robots": count, "which": which} | floor_run(tree, count, work / f"run{i}"))
-    finally:
-        subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(base_tree)], check=False)
+            runs.append(
+                {"robots": count, "which": which} | floor_run(tree, count, base_tree.parent / f"run{i}")
+            )
     command = "python bench/floor_ab.py " + " ".join(argv if argv is not None else sys.argv[1:])
-    report = {"command": command, "base": base.stdout.strip(), "head": f"{head} (working tree)", "runs": runs}
+    report = {"command": command, "base": base, "head": f"{head} (working tree)", "runs": runs}
     (out / "floor_ab.json").write_text(json.dumps(report, indent=1) + "\n")
     (out / "floor_ab.md").write_text(markdown(report))
     print(markdown(report))
