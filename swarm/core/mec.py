@@ -5,8 +5,9 @@ the very same functions with numba for the batched kinematic engine, so both eng
 floating-point arithmetic. Each function is self-contained (no calls to other Python functions),
 which is what lets numba compile it unchanged.
 
-- :func:`welzl_circle`: the exact smallest circle enclosing ``count`` points (Welzl's algorithm, the
-  iterative form of ``swarm.core.metrics.minimum_enclosing_circle``, in the order given).
+- :func:`welzl_circle`: the exact smallest circle enclosing ``count`` points (Welzl's algorithm in its
+  iterative form, in the order given); the one implementation of the circle, which
+  ``swarm.core.metrics.minimum_enclosing_circle`` also runs (on a fixed shuffle).
 - :func:`merge_support`: the flood's max-consensus over per-direction support points.
 - :func:`drive_toward`: full speed toward a target, forward or in reverse (``swarm.core.experts``).
 - :func:`flood_step`, :func:`centralized_mec_step`: the batched engine's loops over B x N robots.
@@ -30,25 +31,33 @@ def welzl_circle(xs, ys, count: int) -> tuple[float, float, float]:
 
     Welzl's algorithm, three nested loops over the points in the order given (expected O(n) on a
     random order, O(n^3) at worst; callers shuffle large sets). Repeated and collinear points are
-    handled as in ``swarm.core.metrics``: a (near-)degenerate triple gives the circle on its farthest pair.
+    handled: a (near-)degenerate triple gives the circle on its farthest pair. A point is inside when
+    its distance is at most ``r + 1e-12 extent + 1e-14 max |coordinate|``: relative to the swarm's
+    extent, plus the rounding of its coordinates (points 1e-5 m apart at 2 m from the origin once
+    judged a repeated point outside its circle by 4e-16, a circle twice too big). Distances are
+    ``sqrt(dx dx + dy dy)``, not ``math.hypot``, whose Python and numba forms differ in the last bit.
     The radius returned is the largest distance from the centre to a point.
     """
-    scale = 0.0
+    scale, magnitude = 0.0, 0.0
     for k in range(count):
         scale = max(scale, abs(xs[k] - xs[0]), abs(ys[k] - ys[0]))
-    tol = 1e-12 * (scale if scale > 0.0 else 1.0)
+        magnitude = max(magnitude, abs(xs[k]), abs(ys[k]))
+    tol = 1e-12 * (scale if scale > 0.0 else 1.0) + 1e-14 * magnitude
     cx, cy, r = xs[0], ys[0], 0.0
     for i in range(1, count):
-        if math.hypot(xs[i] - cx, ys[i] - cy) <= r + tol:
+        dx, dy = xs[i] - cx, ys[i] - cy
+        if math.sqrt(dx * dx + dy * dy) <= r + tol:
             continue
         cx, cy, r = xs[i], ys[i], 0.0
         for j in range(i):
-            if math.hypot(xs[j] - cx, ys[j] - cy) <= r + tol:
+            dx, dy = xs[j] - cx, ys[j] - cy
+            if math.sqrt(dx * dx + dy * dy) <= r + tol:
                 continue
-            cx, cy = 0.5 * (xs[i] + xs[j]), 0.5 * (ys[i] + ys[j])
-            r = 0.5 * math.hypot(xs[i] - xs[j], ys[i] - ys[j])
+            dx, dy = xs[i] - xs[j], ys[i] - ys[j]
+            cx, cy, r = 0.5 * (xs[i] + xs[j]), 0.5 * (ys[i] + ys[j]), 0.5 * math.sqrt(dx * dx + dy * dy)
             for k in range(j):
-                if math.hypot(xs[k] - cx, ys[k] - cy) <= r + tol:
+                dx, dy = xs[k] - cx, ys[k] - cy
+                if math.sqrt(dx * dx + dy * dy) <= r + tol:
                     continue
                 # circumcircle of i, j, k (a degenerate triple: the circle on its farthest pair)
                 ax, ay = xs[i], ys[i]
@@ -57,23 +66,25 @@ def welzl_circle(xs, ys, count: int) -> tuple[float, float, float]:
                 det = 2.0 * (bx * qy - by * qx)
                 b2, q2 = bx * bx + by * by, qx * qx + qy * qy
                 if abs(det) <= 1e-12 * max(b2, q2):
-                    d_ij, d_ik = b2, q2
-                    d_jk = (xs[j] - xs[k]) ** 2 + (ys[j] - ys[k]) ** 2
+                    dx, dy = xs[j] - xs[k], ys[j] - ys[k]
+                    d_ij, d_ik, d_jk = b2, q2, dx * dx + dy * dy
                     if d_ij >= d_ik and d_ij >= d_jk:
                         u, w = i, j
                     elif d_ik >= d_jk:
                         u, w = i, k
                     else:
                         u, w = j, k
+                    dx, dy = xs[u] - xs[w], ys[u] - ys[w]
                     cx, cy = 0.5 * (xs[u] + xs[w]), 0.5 * (ys[u] + ys[w])
-                    r = 0.5 * math.hypot(xs[u] - xs[w], ys[u] - ys[w])
+                    r = 0.5 * math.sqrt(dx * dx + dy * dy)
                 else:
                     ux = (qy * b2 - by * q2) / det
                     uy = (bx * q2 - qx * b2) / det
-                    cx, cy, r = ax + ux, ay + uy, math.hypot(ux, uy)
+                    cx, cy, r = ax + ux, ay + uy, math.sqrt(ux * ux + uy * uy)
     radius = 0.0
     for k in range(count):
-        radius = max(radius, math.hypot(xs[k] - cx, ys[k] - cy))
+        dx, dy = xs[k] - cx, ys[k] - cy
+        radius = max(radius, math.sqrt(dx * dx + dy * dy))
     return cx, cy, radius
 
 

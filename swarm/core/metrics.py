@@ -11,6 +11,8 @@ from collections.abc import Callable
 
 import numpy as np
 
+from swarm.core.mec import welzl_circle
+
 
 def _check_positions(positions: np.ndarray) -> np.ndarray:
     positions = np.asarray(positions, dtype=np.float64)
@@ -52,63 +54,22 @@ METRICS: dict[str, Callable[[np.ndarray], np.ndarray]] = {
 }
 
 
-def _circle_from_three(
-    a: tuple[float, float], b: tuple[float, float], c: tuple[float, float]
-) -> tuple[float, float, float]:
-    """Circumcircle of a, b, c; for (near-)collinear or repeated points, the circle on the farthest pair."""
-    bx, by = b[0] - a[0], b[1] - a[1]
-    cx, cy = c[0] - a[0], c[1] - a[1]
-    det = 2.0 * (bx * cy - by * cx)
-    b2, c2 = bx * bx + by * by, cx * cx + cy * cy
-    if abs(det) <= 1e-12 * max(b2, c2):
-        pairs = [(a, b), (a, c), (b, c)]
-        p, q = max(pairs, key=lambda pq: (pq[0][0] - pq[1][0]) ** 2 + (pq[0][1] - pq[1][1]) ** 2)
-        return _circle_from_two(p, q)
-    ux = (cy * b2 - by * c2) / det
-    uy = (bx * c2 - cx * b2) / det
-    return a[0] + ux, a[1] + uy, math.hypot(ux, uy)
-
-
-def _circle_from_two(a: tuple[float, float], b: tuple[float, float]) -> tuple[float, float, float]:
-    return 0.5 * (a[0] + b[0]), 0.5 * (a[1] + b[1]), 0.5 * math.hypot(a[0] - b[0], a[1] - b[1])
-
-
 def minimum_enclosing_circle(points: np.ndarray) -> tuple[np.ndarray, float]:
     """Exact smallest circle containing every point: ``(center (2,), radius)``.
 
-    Welzl's algorithm in its iterative form (three nested loops), expected O(N) on a
-    random order; the order comes from a fixed-seed shuffle so results are reproducible. Handles N = 1, 2,
-    duplicates and collinear points. The returned radius is the largest distance from the centre to a point,
-    so every point is inside up to rounding.
+    ``swarm.core.mec.welzl_circle`` (the one implementation of the circle and its inside tolerance,
+    which the MEC controllers run too) on a fixed-seed shuffle of the points, so results are
+    reproducible and expected O(N). Handles N = 1, 2, duplicates and collinear points. The returned
+    radius is the largest distance from the centre to a point, so every point is inside up to rounding.
     """
     points = np.asarray(points, dtype=np.float64)
     if points.ndim != 2 or points.shape[1] != 2 or len(points) < 1:
         raise ValueError(f"points must have shape (N, 2) with N >= 1, got {points.shape}")
     if not np.all(np.isfinite(points)):
         raise ValueError("points must be finite")
-    order = np.random.default_rng(0).permutation(len(points))
-    pts: list[tuple[float, float]] = [(float(x), float(y)) for x, y in points[order]]
-    scale = float(np.max(np.abs(points - points[0]))) or 1.0
-    # relative to the swarm's extent, plus the rounding of its coordinates: points 1e-5 m apart at 2 m
-    # from the origin once judged a duplicate "outside" its circle by 4e-16 (a circle twice too big)
-    tol = 1e-12 * scale + 1e-14 * float(np.max(np.abs(points)))
-
-    def outside(p: tuple[float, float], circle: tuple[float, float, float]) -> bool:
-        return math.hypot(p[0] - circle[0], p[1] - circle[1]) > circle[2] + tol
-
-    circle = (pts[0][0], pts[0][1], 0.0)
-    for i in range(1, len(pts)):
-        if not outside(pts[i], circle):
-            continue
-        circle = (pts[i][0], pts[i][1], 0.0)
-        for j in range(i):
-            if not outside(pts[j], circle):
-                continue
-            circle = _circle_from_two(pts[i], pts[j])
-            for k in range(j):
-                if outside(pts[k], circle):
-                    circle = _circle_from_three(pts[i], pts[j], pts[k])
-    center = np.array(circle[:2])
+    shuffled = points[np.random.default_rng(0).permutation(len(points))]
+    cx, cy, _ = welzl_circle(shuffled[:, 0].tolist(), shuffled[:, 1].tolist(), len(points))
+    center = np.array([cx, cy])
     radius = float(np.sqrt(np.max(np.sum((points - center) ** 2, axis=1))))
     return center, radius
 
