@@ -293,3 +293,24 @@ def test_controlled_point_moves_with_u_for_short_steps(x, y, theta, ux, uy):
     moved = controlled_point(integrate_unicycle(pose, wheels, params.half_axle_m, dt), params.offset_m)
     velocity = (moved - controlled_point(pose, params.offset_m)) / dt
     np.testing.assert_allclose(velocity, u, atol=1e-3)
+
+
+def test_wheel_speed_scale_one_formula_for_floats_arrays_and_numba():
+    """The one saturation factor (``swarm.core.robot.wheel_speed_scale``), hand-checked: wheels
+    (1, -0.25) m/s under v_max 0.5 scale by 0.5; under the limit by 1; at rest by 1. The float, array
+    and compiled (``swarm.sim.kernels``) forms give the same bits."""
+    from swarm.core.robot import largest_wheel_speed_local, wheel_speed_scale
+    from swarm.sim import kernels
+
+    assert wheel_speed_scale(1.0, 0.5) == 0.5
+    assert wheel_speed_scale(0.3, 0.5) == 1.0
+    assert wheel_speed_scale(0.0, 0.5) == 1.0
+    rng = np.random.default_rng(9)
+    largest = np.abs(rng.normal(size=2000)) * rng.uniform(0.0, 5.0, 2000)
+    array = wheel_speed_scale(largest, 0.5)
+    assert np.array_equal(array, [wheel_speed_scale(float(x), 0.5) for x in largest])
+    assert np.array_equal(array, [kernels.wheel_speed_scale(float(x), 0.5) for x in largest])
+    # |ux| + (d / l)|uy| is max(|v - d w|, |v + d w|) with v = ux, w = uy / l (eq. 2.3, 2.4)
+    ux, uy = rng.normal(size=2000), rng.normal(size=2000)
+    wheels = np.stack([ux - 0.1 * uy / 0.05, ux + 0.1 * uy / 0.05], axis=-1)
+    np.testing.assert_allclose(largest_wheel_speed_local(ux, uy, 0.1, 0.05), np.abs(wheels).max(-1), rtol=1e-12)

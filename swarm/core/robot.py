@@ -92,15 +92,25 @@ def wheels_to_unicycle(wheels: np.ndarray, half_axle_m: float) -> tuple[np.ndarr
     return 0.5 * (left + right), (right - left) / (2.0 * half_axle_m)
 
 
-def saturate_wheels(wheels: np.ndarray, v_max_mps: float) -> np.ndarray:
-    """Scale both wheels by one factor so that ``max(|vL|, |vR|) <= v_max``.
+def wheel_speed_scale(largest_mps, v_max_mps: float):
+    """The one factor of the wheel-speed saturation: ``min(1, v_max / max(largest, 1e-12))``, where
+    ``largest = max(|vL|, |vR|)`` (m/s). Both wheels (or ``v`` and ``w``, or the point velocity) are
+    multiplied by it, which keeps the ratio ``v / w``: the robot turns on the same arc, only slower,
+    and the controlled point keeps its direction. One form for floats, numpy arrays and numba
+    kernels (``np.minimum``, ``np.maximum``: an ``@njit`` kernel may call it once compiled)."""
+    return np.minimum(1.0, v_max_mps / np.maximum(largest_mps, 1e-12))
 
-    One common factor keeps the ratio v / w, so the robot turns on the same
-    arc, only slower; the controlled point keeps its direction of motion.
-    """
-    largest = np.max(np.abs(wheels), axis=-1, keepdims=True)
-    scale = np.minimum(1.0, v_max_mps / np.maximum(largest, 1e-12))
-    return wheels * scale
+
+def largest_wheel_speed_local(ux_mps, uy_mps, half_axle_m: float, offset_m: float):
+    """``max(|vL|, |vR|) = |v| + d |w|`` of a robot-frame point velocity ``(ux, uy)``: with ``v = ux``,
+    ``w = uy / l`` (eq. 2.3) and ``v -+ d w`` (eq. 2.4), ``|ux| + (d / l) |uy|`` (a diamond). Floats,
+    arrays or numba, like :func:`wheel_speed_scale`."""
+    return np.abs(ux_mps) + half_axle_m / offset_m * np.abs(uy_mps)
+
+
+def saturate_wheels(wheels: np.ndarray, v_max_mps: float) -> np.ndarray:
+    """Both wheels scaled by :func:`wheel_speed_scale` so that ``max(|vL|, |vR|) <= v_max``."""
+    return wheels * wheel_speed_scale(np.max(np.abs(wheels), axis=-1, keepdims=True), v_max_mps)
 
 
 def point_velocity_to_wheels(u_world: np.ndarray, theta: np.ndarray, params: RobotParams) -> np.ndarray:

@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
-from swarm.core.robot import RobotParams, world_to_local
+from swarm.core.robot import RobotParams, largest_wheel_speed_local, wheel_speed_scale, world_to_local
 
 if TYPE_CHECKING:  # swarm.sim.links compiles numba kernels; an agent host has only numpy
     from swarm.sim.links import Links
@@ -72,10 +72,8 @@ def saturate_local_velocity(u_local: np.ndarray, robot: RobotParams) -> np.ndarr
     wheels ``v -+ d w``, both scaled by one factor so that ``max |wheel| <= v_max``; in the robot
     frame that is ``|ux| + (d / l) |uy| <= v_max`` (a diamond), and ``u`` keeps its direction.
     """
-    ratio = robot.half_axle_m / robot.offset_m
-    largest = np.abs(u_local[..., 0]) + ratio * np.abs(u_local[..., 1])
-    scale = np.minimum(1.0, robot.v_max_mps / np.maximum(largest, 1e-12))
-    return u_local * scale[..., None]
+    largest = largest_wheel_speed_local(u_local[..., 0], u_local[..., 1], robot.half_axle_m, robot.offset_m)
+    return u_local * wheel_speed_scale(largest, robot.v_max_mps)[..., None]
 
 
 def gather_sums(inbox: np.ndarray, heard: Links) -> tuple[np.ndarray, np.ndarray]:

@@ -18,10 +18,14 @@ from collections.abc import Callable
 import numba
 import numpy as np
 
+from swarm.core import robot
+
 # Below this half-turn |w dt / 2| the kernel uses series (first omitted terms x^10/11! for sinc
 # and x^10/10! for cos: under 3e-13 at the limit, under 1e-16 at the default 0.125 rad of a
 # full-speed turn in 0.05 s); above it, it calls sin and cos.
 _SERIES_LIMIT = 0.25
+
+wheel_speed_scale = numba.njit(cache=True)(robot.wheel_speed_scale)
 
 
 def _advance_unicycles(
@@ -50,8 +54,8 @@ def _advance_unicycles(
         v = cos_t * ux + sin_t * uy
         w = (-sin_t * ux + cos_t * uy) / offset_m
         largest = max(abs(v - half_axle_m * w), abs(v + half_axle_m * w))
-        if largest > v_max_mps:
-            scale = v_max_mps / largest
+        if largest > v_max_mps:  # else the factor is 1
+            scale = wheel_speed_scale(largest, v_max_mps)
             v *= scale
             w *= scale
         half_turn = 0.5 * w * dt_s

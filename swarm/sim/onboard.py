@@ -20,7 +20,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from swarm.core import mec
-from swarm.core.robot import RobotParams
+from swarm.core.robot import RobotParams, wheel_speed_scale
 
 
 class OnboardController(Protocol):
@@ -82,7 +82,7 @@ def wheels_one(u_world: Sequence[float], theta_rad: float, robot: RobotParams) -
     v = c * ux + s * uy
     w = (-s * ux + c * uy) / robot.offset_m
     left, right = v - robot.half_axle_m * w, v + robot.half_axle_m * w
-    scale = min(1.0, robot.v_max_mps / max(abs(left), abs(right), 1e-12))
+    scale = float(wheel_speed_scale(max(abs(left), abs(right)), robot.v_max_mps))
     return left * scale, right * scale
 
 
