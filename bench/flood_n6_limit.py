@@ -59,7 +59,7 @@ class Hybrid:
             moving = np.ones_like(moving)
         if self.steering == "exact":
             robot = self.robot
-            u = drive_toward_velocity(poses, targets, robot.offset_m, robot.v_max_mps, self.control_period_s)
+            u = drive_toward_velocity(poses, targets, robot.v_max_mps, self.control_period_s)
         else:
             local = saturate_local_velocity(self.policy.steer_local(poses, targets), self.robot)
             u = rotate(local, poses[..., 2])

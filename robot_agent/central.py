@@ -184,7 +184,7 @@ class CentralController:
                 poses = np.array([got[i].array() for i in robots])
                 if mec:  # centralized_mec: full speed toward the MEC centre of the current positions
                     u_world = centralized_mec_velocity(
-                        poses, params.offset_m, params.v_max_mps, config.control_period_s, reverse
+                        poses, params.v_max_mps, config.control_period_s, reverse
                     )
                 else:
                     u_world = complete_consensus_velocity(controlled_point(poses, params.offset_m), gain)

@@ -402,7 +402,7 @@ def test_steering_stage_fits_the_steering_alone(tmp_path, capsys):
     poses = np.concatenate([np.zeros((4000, 2)), rng.uniform(-np.pi, np.pi, (4000, 1))], axis=-1)
     distance, bearing = np.exp(rng.uniform(np.log(0.01), np.log(5.0), 4000)), rng.uniform(-np.pi, np.pi, 4000)
     targets = np.stack([distance * np.cos(bearing), distance * np.sin(bearing)], axis=-1)
-    expert = drive_toward_velocity(poses, targets, ROBOT.offset_m, ROBOT.v_max_mps, DT)
+    expert = drive_toward_velocity(poses, targets, ROBOT.v_max_mps, DT)
     labels = saturate_local_velocity(world_to_local(expert, poses[:, 2]), ROBOT)
 
     def error(policy: FloodPolicy) -> float:

@@ -313,4 +313,6 @@ def test_wheel_speed_scale_one_formula_for_floats_arrays_and_numba():
     # |ux| + (d / l)|uy| is max(|v - d w|, |v + d w|) with v = ux, w = uy / l (eq. 2.3, 2.4)
     ux, uy = rng.normal(size=2000), rng.normal(size=2000)
     wheels = np.stack([ux - 0.1 * uy / 0.05, ux + 0.1 * uy / 0.05], axis=-1)
-    np.testing.assert_allclose(largest_wheel_speed_local(ux, uy, 0.1, 0.05), np.abs(wheels).max(-1), rtol=1e-12)
+    np.testing.assert_allclose(
+        largest_wheel_speed_local(ux, uy, 0.1, 0.05), np.abs(wheels).max(-1), rtol=1e-12
+    )

@@ -48,19 +48,21 @@ def neighbour_consensus_velocity(
 def drive_toward_velocity(
     poses: np.ndarray,
     targets: np.ndarray,
-    offset_m: float,
     v_max_mps: float,
     control_period_s: float,
     reverse: bool = True,
 ) -> np.ndarray:
-    """Full-speed drive of a controlled point toward a target, forward or (``reverse``) backward.
+    """Full-speed drive of a robot's AXLE toward a target, forward or (``reverse``) backward.
 
-    poses ``(..., 3)``, targets ``(..., 2)`` world positions. Forward, the controlled point is
-    ``p = x + l h`` (thesis eq. 2.2); when ``reverse`` and the target is behind the axle
-    (``<c - x, h> < 0``) the robot drives backwards and the speed-limited point is ``p = x - l h``,
-    the point the backward unicycle leads with. The point heads for the target with
-    ``u = (c - p) min(v_max / |c - p|, 1 / T)``: full speed, or the whole way in one control period
-    ``T`` when closer than ``v_max T`` (no overshoot). A robot already on its target gets ``u = 0``.
+    poses ``(..., 3)``, targets ``(..., 2)`` world positions. The axle ``x`` is what success judges
+    (``swarm.core.metrics``), so the command is ``u = (c - x) min(v_max / |c - x|, 1 / T)``: full
+    speed, or the whole way in one control period ``T`` when closer than ``v_max T``, applied to the
+    leading point ``x + l h`` (eq. 2.2), or, when ``reverse`` and the target is behind the axle
+    (``<c - x, h> < 0``), to the point ``x - l h`` the backward unicycle leads with. Either way the
+    axle moves with ``v = <u, h>``, so ``d|x - c|^2 / dt = -2 k <x - c, h>^2 <= 0`` while the
+    heading turns toward (away from, in reverse) the target: the axles gather on the target,
+    whatever the offset ``l`` (a law on the point ``x + l h`` would leave them ``l`` from it). A
+    robot already on its target gets ``u = 0``.
 
     Returns the world velocity of the FORWARD controlled point that gives the same ``(v, w)`` as
     this command (eq. 2.3 with offset ``-l`` equals eq. 2.3 with ``+l`` on the command reflected
@@ -70,11 +72,9 @@ def drive_toward_velocity(
     poses = np.asarray(poses, dtype=np.float64)
     targets = np.asarray(targets, dtype=np.float64)
     heading = np.stack([np.cos(poses[..., 2]), np.sin(poses[..., 2])], axis=-1)
-    axle = poses[..., :2]
-    behind = ((targets - axle) * heading).sum(axis=-1) < 0.0
+    delta = targets - poses[..., :2]
+    behind = (delta * heading).sum(axis=-1) < 0.0
     backward = behind if reverse else np.zeros_like(behind)
-    sign = np.where(backward, -1.0, 1.0)[..., None]
-    delta = targets - (axle + sign * offset_m * heading)
     distance = np.sqrt((delta * delta).sum(axis=-1))
     scale = np.where(
         distance > 0.0,
@@ -88,13 +88,12 @@ def drive_toward_velocity(
 
 def centralized_mec_velocity(
     poses: np.ndarray,
-    offset_m: float,
     v_max_mps: float,
     control_period_s: float,
     reverse: bool = True,
 ) -> np.ndarray:
     """The time-optimal centralized expert (``centralized_mec``) for one swarm: every robot drives its
-    controlled point at full speed toward the centre of the exact minimum enclosing circle of the
+    axle at full speed toward the centre of the exact minimum enclosing circle of the
     CURRENT axle positions (``swarm.core.metrics.minimum_enclosing_circle``), with reversing
     (:func:`drive_toward_velocity`). poses ``(N, 3)`` -> world velocities ``(N, 2)`` of the forward
     controlled points. The MEC centre is the point the lower bound of ``swarm.core.metrics.lower_bound_s``
@@ -105,4 +104,4 @@ def centralized_mec_velocity(
     poses = np.asarray(poses, dtype=np.float64)
     centre, _ = minimum_enclosing_circle(poses[:, :2])
     targets = np.broadcast_to(centre, poses[:, :2].shape)
-    return drive_toward_velocity(poses, targets, offset_m, v_max_mps, control_period_s, reverse)
+    return drive_toward_velocity(poses, targets, v_max_mps, control_period_s, reverse)

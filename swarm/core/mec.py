@@ -116,19 +116,17 @@ def drive_toward(
     theta_rad: float,
     target_x_m: float,
     target_y_m: float,
-    offset_m: float,
     v_max_mps: float,
     control_period_s: float,
     reverse: bool,
 ) -> tuple[float, float]:
     """``swarm.core.experts.drive_toward_velocity`` for one robot, in floats: the world velocity of the
-    FORWARD controlled point that drives the robot's leading point (``x + l h``, or ``x - l h`` in
-    reverse when the target is behind the axle) toward the target at ``min(v_max, distance / T)``."""
+    FORWARD controlled point that drives the robot's AXLE toward the target (what success judges), at
+    ``min(v_max, distance / T)``, forward or in reverse when the target is behind the axle."""
     c, s = math.cos(theta_rad), math.sin(theta_rad)
-    backward = reverse and (target_x_m - x_m) * c + (target_y_m - y_m) * s < 0.0
-    sign = -1.0 if backward else 1.0
-    dx = target_x_m - (x_m + sign * offset_m * c)
-    dy = target_y_m - (y_m + sign * offset_m * s)
+    dx = target_x_m - x_m
+    dy = target_y_m - y_m
+    backward = reverse and dx * c + dy * s < 0.0
     distance = math.sqrt(dx * dx + dy * dy)
     if distance <= 0.0:
         return 0.0, 0.0
@@ -146,7 +144,6 @@ def flood_step(
     neighbour_index,
     directions_x,
     directions_y,
-    offset_m: float,
     v_max_mps: float,
     control_period_s: float,
     reverse: bool,
@@ -213,7 +210,6 @@ def flood_step(
                 poses[env, i, 2],
                 cx,
                 cy,
-                offset_m,
                 v_max_mps,
                 control_period_s,
                 reverse,
@@ -229,7 +225,6 @@ def centralized_mec_step(
     order,
     xs,
     ys,
-    offset_m: float,
     v_max_mps: float,
     control_period_s: float,
     reverse: bool,
@@ -251,7 +246,6 @@ def centralized_mec_step(
                 poses[env, i, 2],
                 cx,
                 cy,
-                offset_m,
                 v_max_mps,
                 control_period_s,
                 reverse,

@@ -92,7 +92,7 @@ class MecFlood:
     each tick the per-direction maximum of what it held and what its heard neighbours sent last
     tick (``swarm.core.mec.merge_support``; idempotent, so lost or repeated messages only delay the
     flood, which is exact after graph-diameter many ticks). Its target is the centre of the
-    minimum enclosing circle of those M points; it drives its controlled point there at full
+    minimum enclosing circle of those M points; it drives its axle there at full
     speed, in reverse when the target is behind the axle and ``reverse`` is on
     (``swarm.core.experts.drive_toward_velocity``). A robot that knows of no other robot holds still.
     Its memory is its own message of last tick: ``inbox[:, i]`` (message layout in
@@ -124,7 +124,6 @@ class MecFlood:
             np.ascontiguousarray(inbox, dtype=np.float64),
             np.ascontiguousarray(heard.index),
             *self._directions,
-            robot.offset_m,
             robot.v_max_mps,
             self.control_period_s,
             self.reverse,
@@ -163,7 +162,6 @@ class CentralizedMec:
             self._order,
             np.empty(poses.shape[:2]),
             np.empty(poses.shape[:2]),
-            robot.offset_m,
             robot.v_max_mps,
             self.control_period_s,
             self.reverse,

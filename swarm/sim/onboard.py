@@ -147,7 +147,6 @@ class OnboardMecFlood:
                 theta_rad,
                 cx,
                 cy,
-                self.robot.offset_m,
                 self.robot.v_max_mps,
                 self.control_period_s,
                 self.reverse,

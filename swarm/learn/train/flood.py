@@ -209,9 +209,7 @@ class MixtureDriver:
 
 
 def expert_velocity(poses: np.ndarray, robot: RobotParams, config: FloodConfig) -> np.ndarray:
-    return centralized_mec_velocity(
-        poses, robot.offset_m, robot.v_max_mps, config.control_period_s, config.reverse
-    )
+    return centralized_mec_velocity(poses, robot.v_max_mps, config.control_period_s, config.reverse)
 
 
 def run_group(
@@ -345,7 +343,7 @@ def steering_rows(count: int, robot: RobotParams, config: FloodConfig, rng: np.r
     distance = np.exp(rng.uniform(np.log(0.01), np.log(5.0), count))
     bearing = rng.uniform(-np.pi, np.pi, count)
     targets = np.stack([distance * np.cos(bearing), distance * np.sin(bearing)], axis=-1)
-    u_world = drive_toward_velocity(poses, targets, robot.offset_m, robot.v_max_mps, config.control_period_s)
+    u_world = drive_toward_velocity(poses, targets, robot.v_max_mps, config.control_period_s)
     labels = saturate_local_velocity(world_to_local(u_world, poses[:, 2]), robot)
     return tuple(torch.as_tensor(a, dtype=torch.float32) for a in (poses, targets, labels))
 
