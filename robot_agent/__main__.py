@@ -30,6 +30,7 @@ from pathlib import Path
 import zenoh
 
 from robot_agent.agent import EXIT_FAILED, AgentOptions, RobotAgent
+from swarm.core.exit_codes import ExitCode
 from swarm.runtime import acl, wire
 from swarm.runtime.procs import die_with_parent
 from swarm.runtime.usage import OneLineArgumentParser, configure_logging, one_line
@@ -198,7 +199,7 @@ def launch(robots: list[int], args: argparse.Namespace, settings: dict[int, dict
             break
         pid = os.fork()
         if pid == 0:
-            code = EXIT_FAILED
+            code: int = EXIT_FAILED
             try:
                 code = _child(robot, args, settings[robot])
             finally:
@@ -247,7 +248,7 @@ def main(argv: list[str] | None = None) -> int:
             Path(args.log_dir).mkdir(parents=True, exist_ok=True)
     except (ValueError, OSError, zenoh.ZError) as error:  # CredentialsError is a ValueError
         print(f"robot-agent: error: {one_line(error)}", file=sys.stderr)
-        return 2
+        return ExitCode.BAD_INPUT
     if args.nice:
         os.nice(args.nice)  # before forking: every agent inherits it
     if args.robot is not None:

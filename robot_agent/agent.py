@@ -62,6 +62,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from swarm.core.exit_codes import ExitCode
 from swarm.core.faults import DROPPED, HEARD, LOST, LinkFaults, message_max_age_ticks, select_message
 from swarm.core.robot import RobotParams
 from swarm.runtime import wire
@@ -97,7 +98,7 @@ POLL_S = 0.0005
 WAKE_SIGNAL = signal.SIGUSR1
 """Sent to the main thread when the sim goes away, to interrupt its blocking ``recv``."""
 
-EXIT_DONE, EXIT_FAILED = 0, 1
+EXIT_DONE, EXIT_FAILED = ExitCode.SUCCESS, ExitCode.NOT_MET
 
 
 class _Wake(BaseException):

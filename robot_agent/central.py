@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from swarm.core.exit_codes import ExitCode
 from swarm.core.experts import centralized_mec_velocity, complete_consensus_velocity
 from swarm.core.robot import RobotParams, controlled_point, point_velocity_to_wheels
 from swarm.runtime import wire
@@ -115,7 +116,7 @@ class CentralController:
         if session is None:
             self.record["exit_reason"] = "could not connect"
             self._write_record()
-            return 1
+            return ExitCode.NOT_MET
         try:
             return self._run(session, started_s)
         finally:
@@ -140,11 +141,11 @@ class CentralController:
         config = self._fetch_config(session, started_s)
         if config is None:
             record["exit_reason"] = "no config from the sim"
-            return 1
+            return ExitCode.NOT_MET
         count, gain = config.robot_count, config.gain
         if config.controller not in ("centralized", "centralized_mec"):
             record["exit_reason"] = f"controller {config.controller!r} is not a central controller"
-            return 1
+            return ExitCode.NOT_MET
         mec = config.controller == "centralized_mec"
         reverse = bool((config.scenario.get("controller") or {}).get("reverse", True))
         record["controller"] = config.controller

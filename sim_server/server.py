@@ -49,6 +49,7 @@ import numpy as np
 import zenoh
 
 from sim_server.physics import PhysicsWorld
+from swarm.core.exit_codes import ExitCode
 from swarm.core.robot import saturate_wheels
 from swarm.runtime import wire
 from swarm.scenarios.results import TrajectoryWriter, prepare_results_dir
@@ -56,7 +57,12 @@ from swarm.scenarios.scenario import Scenario
 
 log = logging.getLogger(__name__)
 
-EXIT_DONE, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+EXIT_DONE, EXIT_FAILED, EXIT_BAD_INPUT, EXIT_INTERRUPTED = (
+    ExitCode.SUCCESS,
+    ExitCode.NOT_MET,
+    ExitCode.BAD_INPUT,
+    ExitCode.INTERRUPTED,
+)
 
 TRAJECTORY_FLUSH_S = 0.1
 """Trajectory lines are batched and written at most this long after the oldest (every tick when the
@@ -281,7 +287,7 @@ class SimServer:
         config = wire.session_config(
             options.zenoh_mode, options.connect, options.listen, options.lease_ms, options.zenoh_settings
         )
-        outcome = EXIT_FAILED
+        outcome: int = EXIT_FAILED
         try:
             with zenoh.open(config) as session:
                 token = session.liveliness().declare_token(self.keys.alive_sim)
@@ -532,7 +538,12 @@ class SimServer:
 
     def _write_stats(self, outcome: int | None) -> None:
         """``server_stats.json``, replaced atomically; ``outcome`` None: the run goes on."""
-        exits = {None: "running", EXIT_DONE: "done", EXIT_FAILED: "failed", EXIT_INTERRUPTED: "interrupted"}
+        exits: dict[int | None, str] = {
+            None: "running",
+            EXIT_DONE: "done",
+            EXIT_FAILED: "failed",
+            EXIT_INTERRUPTED: "interrupted",
+        }
         stats = {
             "run": self.options.run,
             "mode": self.scenario.sim.mode,

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import yaml
 
+from swarm.core.exit_codes import ExitCode
 from swarm.sim.controller_kinds import CONTROLLER_KINDS
 
 SWEEP_CONTROLLER_NAMES = [
@@ -31,7 +32,12 @@ SWEEP_CONTROLLER_NAMES = [
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_SCENARIO = "scenarios/thesis/cycle-gnn.yaml"
-EXIT_SUCCESS, EXIT_NOT_MET, EXIT_BAD_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
+EXIT_SUCCESS, EXIT_NOT_MET, EXIT_BAD_INPUT, EXIT_INTERRUPTED = (
+    ExitCode.SUCCESS,
+    ExitCode.NOT_MET,
+    ExitCode.BAD_INPUT,
+    ExitCode.INTERRUPTED,
+)
 RECORDING_FORMATS = ("mcap", "rerun")
 
 

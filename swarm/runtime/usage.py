@@ -4,7 +4,7 @@
 the whole usage first); :func:`one_line` turns any exception into one line for the user;
 :func:`silenced_stderr` keeps a C library's chatter (pybullet prints its build time on import) off it;
 :func:`configure_logging` is how a command line decides what the user sees of the library's log records.
-Standard library only: robot agents use it.
+Standard library only (and ``swarm.core.exit_codes``): robot agents use it.
 """
 
 from __future__ import annotations
@@ -17,7 +17,9 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import NoReturn
 
-EXIT_BAD_INPUT = 2
+from swarm.core.exit_codes import ExitCode
+
+EXIT_BAD_INPUT = ExitCode.BAD_INPUT
 
 
 def one_line(error: BaseException) -> str:
