@@ -23,8 +23,6 @@ from swarm.core.faults import (
     HEARD,
     LOST,
     LinkFaults,
-    add_fault_results,
-    fault_summary,
     loss_uniform,
     loss_uniform_array,
     message_max_age_ticks,
@@ -33,6 +31,7 @@ from swarm.core.faults import (
     usable_ticks,
 )
 from swarm.core.robot import RobotParams, point_velocity_to_wheels
+from swarm.scenarios.fault_results import add_fault_results, fault_summary
 from swarm.scenarios.results import read_trajectory, summarize
 from swarm.scenarios.scenario import ScenarioError, load_scenario, parse_scenario
 from swarm.sim.controller_kinds import robot_controller

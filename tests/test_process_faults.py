@@ -140,7 +140,7 @@ def test_killed_hung_and_restarted_agents(tmp_path):
     live = [i for i in range(8) if i != 3]
     spread = metrics.max_pairwise(poses[:, live, :2])
     assert spread[-1] <= scenario.threshold < spread[0]
-    # metrics.json judges the run on the live robots (swarm.core.faults) and lists the events.
+    # metrics.json judges the run on the live robots (swarm.scenarios.fault_results) and lists the events.
     outcome = json.loads((out / "metrics.json").read_text())
     assert outcome["faults"]["events"] == events
     assert outcome["faults"]["agents_lost"] == [3] and outcome["faults"]["agents_restarted"] == [0]

@@ -32,9 +32,10 @@ from pathlib import Path
 
 import numpy as np
 
-from swarm.core.faults import PROCESS_FAULTS, add_fault_results
+from swarm.core.faults import PROCESS_FAULTS
 from swarm.runtime.acl import write_credentials
 from swarm.runtime.procs import Supervisor, free_tcp_port
+from swarm.scenarios.fault_results import add_fault_results
 from swarm.scenarios.report import write_pictures
 from swarm.scenarios.results import (
     prepare_results_dir,
@@ -463,7 +464,7 @@ def _run_distributed(
     outcome["runtime"] = runtime_summary(scenario, stats, records, endpoint, wall_s, first_tick_s)
     if stats.get("agents_ready_unix_s") is not None:
         outcome["runtime"]["agents_ready_s"] = round(stats["agents_ready_unix_s"] - started_unix_s, 3)
-    if scenario.faults:  # judged on the live robots and graph at the end (swarm.core.faults)
+    if scenario.faults:  # judged on the live robots and graph at the end (swarm.scenarios.fault_results)
         add_fault_results(outcome, scenario, out_dir, records, times_s, poses)
     write_metrics(out_dir, outcome)
     write_pictures(out_dir, scenario, times_s, poses, outcome)

@@ -11,7 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from swarm.core.faults import PROCESS_FAULTS, LinkFaults, add_fault_results, message_max_age_ticks
+from swarm.core.faults import PROCESS_FAULTS, LinkFaults, message_max_age_ticks
+from swarm.scenarios.fault_results import add_fault_results
 from swarm.scenarios.report import write_pictures
 from swarm.scenarios.results import (
     TrajectoryWriter,

@@ -294,7 +294,7 @@ def report(out_dir: Path, partial: str | None = None) -> dict:
         outcome.setdefault("incomplete", f"the trajectory has {len(times_s)} of {steps + 1} ticks")
         outcome["ticks_planned"] = steps
     if scenario.faults:  # judged on the live robots, from events.jsonl and the agents' records
-        from swarm.core.faults import add_fault_results
+        from swarm.scenarios.fault_results import add_fault_results
 
         records = {}
         for record_path in (out_dir / "logs").glob("agent_*.json"):
