@@ -153,15 +153,22 @@ def test_decentralized_robot_0_of_a_line_of_10_ignores_robot_9_for_8_ticks():
     assert np.abs(runs[0][8:] - runs[1][8:]).max() > 1e-6  # tick 9: robot 9's start has arrived
 
 
-@pytest.mark.parametrize("offset_m", [ROBOT.offset_m, 0.2])
-def test_onboard_flood_computes_what_the_batched_one_computes_whatever_the_order(offset_m):
+@pytest.mark.parametrize(
+    ("offset_m", "grid"), [(ROBOT.offset_m, False), (0.2, False), (ROBOT.offset_m, True)]
+)
+def test_onboard_flood_computes_what_the_batched_one_computes_whatever_the_order(offset_m, grid):
     """Per-robot (plain floats, the agents' code) vs the numba kernel, tick by tick, with neighbours
-    heard in a shuffled order and some messages heard twice (idempotent, commutative merge)."""
+    heard in a shuffled order and some messages heard twice (idempotent, commutative merge). On a
+    grid start robots share coordinates, so support points tie in projection and the merge's
+    tie-break (larger x, then larger y) decides: the kernel's inline copy must break ties alike."""
     count = 8
     robot = RobotParams(offset_m=offset_m)
     rng = np.random.default_rng(5)
     adjacency = graphs.erdos_renyi(count, 0.4, 1, connected=True)
     start = np.concatenate([rng.uniform(-2, 2, (1, count, 2)), rng.uniform(-np.pi, np.pi, (1, count, 1))], -1)
+    if grid:  # a 4 x 2 grid, 1 m apart, 2 km from the origin, in shuffled order
+        cells = np.stack(np.meshgrid(np.arange(4.0), np.arange(2.0)), -1).reshape(-1, 2)
+        start[0, :, :2] = 2000.0 + cells[rng.permutation(count)]
     sim = KinematicSim(robot, MecFlood(robot, DT, reverse=True), DT, start, adjacency=adjacency)
     agents = [OnboardMecFlood(robot, DT) for _ in range(count)]
     last = None
