@@ -220,7 +220,12 @@ class KinematicSim:
 
     def step(self) -> np.ndarray:
         """Advance one control period; returns the poses ``(B, N, 3)``, updated in place."""
-        u_world = self.act()
+        return self.move(self.act())
+
+    def move(self, u_world: np.ndarray) -> np.ndarray:
+        """The motion half of :meth:`step`: every robot drives with the world velocity ``u_world (B, N, 2)``
+        of its controlled point for one control period (saturated, exact unicycle step); the tick
+        advances. Returns the poses, updated in place."""
         robot = self.robot
         kernels.advance_unicycles(
             self.poses.reshape(-1, 3),
