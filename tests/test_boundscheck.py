@@ -75,7 +75,8 @@ rng = np.random.default_rng(0)
 
 
 def start():
-    return np.concatenate([rng.uniform(-1.5, 1.5, (batch, count, 2)), rng.uniform(-3, 3, (batch, count, 1))], -1)
+    xy = rng.uniform(-1.5, 1.5, (batch, count, 2))
+    return np.concatenate([xy, rng.uniform(-3, 3, (batch, count, 1))], -1)
 
 
 runs = 0
@@ -109,12 +110,15 @@ def dispatchers(module):
         if isinstance(value, Dispatcher):
             yield value
         elif isinstance(value, types.FunctionType) and value.__closure__:
-            yield from (cell.cell_contents for cell in value.__closure__ if isinstance(cell.cell_contents, Dispatcher))
+            cells = [cell.cell_contents for cell in value.__closure__]
+            yield from (cell for cell in cells if isinstance(cell, Dispatcher))
 
 
 found = {id(d): d for module in (kernels, mec_kernels, flood_kernel) for d in dispatchers(module)}
 never = sorted(
-    d.py_func.__qualname__ for d in found.values() if not d.signatures and d.targetoptions.get("inline") != "always"
+    d.py_func.__qualname__
+    for d in found.values()
+    if not d.signatures and d.targetoptions.get("inline") != "always"
 )
 print(json.dumps({"runs": runs, "kernels": len(found), "never_run": never}))
 """
