@@ -46,8 +46,8 @@ from _output import add_output_arguments, output_dir, progress
 from swarm.core import graphs
 from swarm.core.initial_poses import box_for, random_poses
 from swarm.scenarios.sweep import SweepConfig, cell_path, random_edge_probability, run_cell
-from swarm.sim import flood_kernel, flood_readout, kernels
-from swarm.sim.kinematic import KinematicSim
+from swarm.sim import flood_kernel, kernels
+from swarm.sim.kinematic import KinematicSim, same_lists
 from swarm.sim.policy import FloodPolicy, load_policy
 
 SHAPES = [(64, 100), (1024, 6)]
@@ -234,33 +234,34 @@ def profile(policy, batch, count, graph, repeats) -> dict:
         sim = make_sim(policy, batch, count, graph)
         for _ in range(60):  # past the flood: the memory no longer changes
             sim.step()
-        links, robots = sim.links(), batch * count
+        robots = batch * count
         calls = max(3, 2_000_000 // robots)
-        arguments = [
-            sim.poses,
-            sim.inbox,
-            np.ascontiguousarray(links.index),
-            *flood_kernel.packed(policy),
-            flood_readout.HESSIAN_EPS,
-            flood_readout.MAX_STEP,
-            flood_readout.TAU_START,
-            flood_readout.RHO_EPS_M,
-            flood_kernel.BLOCK,
-            1,
-            flood_kernel._unchanged_before(policy, sim.inbox, links, batch, count),  # as the engine's call
-            np.empty((batch, count), dtype=np.bool_),
-            np.empty((batch, count, 2)),
-            np.empty(sim.inbox.shape),
-        ]
-        direct = cpu_per_call(lambda: flood_kernel._serial(*arguments), calls, repeats)
-        no_mlp = list(arguments)
-        no_mlp[10] = no_mlp[10][:0]  # no steering layers
-        without_mlp = cpu_per_call(lambda: flood_kernel._serial(*no_mlp), calls, repeats)
-        fresh = list(arguments)
-        fresh[1] = sim.inbox.copy()
-        fresh[1][..., -1] = 0.0  # no message is valid: every target recomputed (and no max skipped)
-        recompute = cpu_per_call(lambda: flood_kernel._serial(*fresh), max(3, calls // 20), repeats)
-        act = cpu_per_call(lambda: flood_kernel.act(policy, sim.poses, sim.inbox, links), calls, repeats)
+        heard = sim._sent_over  # the links the engine's next call hears over (a fixed graph: links)
+        last = sim._flood_call
+        assert last is not None and last.outbox is sim.inbox
+        skip = flood_kernel.Skip(last.unchanged, same_lists(heard, last.heard))  # as the engine's call
+        weights = flood_kernel.packed(policy)
+        inputs = flood_kernel.Inputs(sim.poses, sim.inbox, np.ascontiguousarray(heard.index), skip)
+        outputs = flood_kernel.Outputs(
+            np.empty((batch, count, 2)), np.empty(sim.inbox.shape), np.empty((batch, count), dtype=np.bool_)
+        )
+        block = flood_kernel.BLOCK
+        direct = cpu_per_call(
+            lambda: flood_kernel._serial(weights, inputs, outputs, block, 1), calls, repeats
+        )
+        no_mlp = weights._replace(steer_shapes=weights.steer_shapes[:0])  # no steering layers
+        without_mlp = cpu_per_call(
+            lambda: flood_kernel._serial(no_mlp, inputs, outputs, block, 1), calls, repeats
+        )
+        invalid = sim.inbox.copy()
+        invalid[..., -1] = 0.0  # no message is valid: every target recomputed (and no max skipped)
+        fresh = inputs._replace(inbox=invalid)
+        recompute = cpu_per_call(
+            lambda: flood_kernel._serial(weights, fresh, outputs, block, 1), max(3, calls // 20), repeats
+        )
+        act = cpu_per_call(
+            lambda: flood_kernel.act(policy, sim.poses, sim.inbox, heard, skip), calls, repeats
+        )
         u_world = np.zeros((batch, count, 2))
         poses, headings, points = sim.poses.copy(), sim.headings.copy(), sim.points.copy()
         robot = policy.robot

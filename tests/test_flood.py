@@ -174,8 +174,8 @@ def test_batched_kernel_over_blocks_threads_and_targets_taken_from_neighbours(tm
 
 def test_skipping_neighbours_whose_memory_did_not_change_keeps_every_bit(tmp_path):
     """On a fixed graph the kernel skips the max with a neighbour whose memory did not change at the
-    last tick (``flood_kernel._unchanged_before``). The oracle: the same run with the skip impossible
-    (the engine handed a copy of its inbox each tick, so the kernel cannot know it is its own last
+    last tick (``flood_kernel.Skip``, from ``KinematicSim``). The oracle: the same run with the skip
+    impossible (the engine handed a copy of its inbox each tick, so the kernel cannot know it is its own last
     outbox); trajectories and messages must be bit for bit the same, and the skip must have had
     work to do (counted from the messages, outside the kernel)."""
     trained = Path(__file__).resolve().parent.parent / "models" / "gnn_flood.npz"
@@ -416,3 +416,65 @@ def test_steering_stage_fits_the_steering_alone(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "missing.npz: no such policy file" in err[0]
     assert not (tmp_path / "bad").exists()  # nothing started
+
+
+def test_skipping_on_a_proximity_graph_keeps_every_bit():
+    """On a disk graph the links change as the robots move, and the kernel may skip neighbour j of robot
+    i only where i's neighbour list is the one of the last tick (``KinematicSim`` compares them,
+    ``swarm.sim.kinematic.same_lists``): a new neighbour whose memory did not change sends what i has
+    never taken the max with. Oracle: the same run with the skip impossible (a copy of the inbox each
+    tick); trajectories and messages bit for bit. Counted outside the kernel, both cases occur: pairs
+    that may be skipped (same list, neighbour's memory unchanged) and new neighbours with an unchanged
+    memory where a skip would lose information (a kernel that skips those too leaves robots 1.25 m
+    off at the end)."""
+    policy = load_policy(Path(__file__).resolve().parent.parent / "models" / "gnn_flood.npz")
+    batch, count, ticks = 4, 30, 150
+    poses = _poses(25, batch, count, half_width_m=4.0)  # components that meet as they gather
+    runs = []
+    for copy_inbox in (False, True):
+        sim = KinematicSim(ROBOT, policy, DT, poses, disk_radius_m=1.2)
+        trajectory, messages, heard = [], [], []
+        for _ in range(ticks):
+            heard.append(sim._sent_over.dense > 0)  # the links this tick's messages are heard over
+            trajectory.append(sim.step().copy())
+            messages.append(sim.inbox.copy())
+            if copy_inbox:
+                sim.inbox = sim.inbox.copy()
+        runs.append((np.array(trajectory), np.array(messages), np.array(heard)))
+    np.testing.assert_array_equal(runs[0][0], runs[1][0])
+    np.testing.assert_array_equal(runs[0][1], runs[1][1])
+    memory, heard = runs[1][1][..., : policy.memory_dim], runs[1][2]  # heard[t]: links of call t
+    unchanged = np.all(memory[1:] == memory[:-1], axis=-1)  # [t - 1]: robot j's memory of call t kept
+    settled = unchanged[:-1, :, None, :]  # (T-2, B, 1, N): the neighbour's message at call t + 2
+    now, before = heard[2:], heard[1:-1]
+    same = np.all(now == before, axis=-1, keepdims=True)  # robot i's list is the one of the last call
+    skippable = int(np.sum(now & same & settled))
+    new_and_settled = int(np.sum(now & ~before & settled))
+    assert skippable > 20 * batch * count and new_and_settled > batch * count
+
+
+def test_a_skip_covers_every_inbox_column_or_is_refused(tmp_path):
+    """Under a delay the inbox holds the last H ticks' messages side by side, ``(B, H*N, D)``, and the
+    neighbour lists point into all of them; a skip sized for N columns made the kernel read past its
+    array (the last H-1 environments of a batch skipped messages on what lay there). The kernel's
+    entry refuses a skip that does not have one flag per inbox column, and the engine under a delay
+    gives every environment of a batch the run it has alone, bit for bit."""
+    from swarm.sim import flood_kernel
+
+    policy = _policy(tmp_path, _random_model(19))
+    batch, count, history = 5, 8, 3
+    poses = _poses(24, batch, count)
+    inbox = np.zeros((batch, history * count, policy.message_dim))
+    heard = KinematicSim(ROBOT, policy, DT, poses, adjacency=graphs.line(count)).links()
+    too_small = flood_kernel.Skip(np.ones((batch, count), bool), np.ones((batch, count), bool))
+    with pytest.raises(ValueError, match=rf"expected \({batch}, {history * count}\)"):
+        flood_kernel.act(policy, poses, inbox, heard, too_small)
+    faults = LinkFaults([{"kind": "delay", "ticks": history - 1}], DT, 0)
+    together = KinematicSim(ROBOT, policy, DT, poses, adjacency=graphs.line(count), link_faults=faults)
+    trajectory = together.rollout(40)
+    assert together.fault_counts["delayed_by_fault"] > 0
+    for env in range(batch):
+        alone = KinematicSim(
+            ROBOT, policy, DT, poses[env : env + 1], adjacency=graphs.line(count), link_faults=faults
+        )
+        np.testing.assert_array_equal(alone.rollout(40)[:, 0], trajectory[:, env])

@@ -182,7 +182,7 @@ class _RestartableSim(KinematicSim):
     """``KinematicSim`` whose environments restart one by one: new poses, new graph, nothing heard yet.
 
     The only place in ``swarm.rl`` that touches the simulator's private state (its fixed links and
-    the links last tick's messages went over); ``tests/test_rl.py`` pins the behaviour.
+    the links last tick's messages went over, read by ``heard``); ``tests/test_rl.py`` pins the behaviour.
     """
 
     def __init__(self, robot, controller, control_period_s, initial_poses, adjacency):
@@ -195,17 +195,11 @@ class _RestartableSim(KinematicSim):
         """Who heard whom with the messages now in ``inbox`` (the graph of the last tick)."""
         return self._sent_over
 
-    def restart(self, envs: np.ndarray, poses: np.ndarray, adjacency: np.ndarray) -> None:
-        """Environments ``envs`` (indices) start over from ``poses (E, N, 3)`` on ``adjacency (E, N, N)``."""
-        self.poses[envs] = poses
-        theta = poses[..., 2]
-        self.headings[envs] = np.stack([np.cos(theta), np.sin(theta)], axis=-1)
-        self.points[envs] = controlled_point(poses, self.robot.offset_m)
-        self.inbox[envs] = 0.0
-        index, weight = self._sent_over.index.copy(), self._sent_over.weight.copy()
-        index[envs], weight[envs] = -1, 0.0
-        self._sent_over = Links(index, weight)
-        if not np.array_equal(self._adjacency[envs], adjacency):
+    def restart(self, envs: np.ndarray, poses: np.ndarray, adjacency: np.ndarray | None = None) -> None:
+        """Environments ``envs`` (indices) start over from ``poses (E, N, 3)`` (``KinematicSim.restart``)
+        on ``adjacency (E, N, N)`` (None: the graph they had)."""
+        super().restart(envs, poses)
+        if adjacency is not None and not np.array_equal(self._adjacency[envs], adjacency):
             self._adjacency[envs] = adjacency
             self._fixed_links = Links.from_dense(self._adjacency)
 

@@ -8,14 +8,19 @@ the rotation to the world frame. Same arithmetic as the numpy reference ``FloodP
 
 What makes it fast (``bench/bench_gnn.py``), none of which changes a bit of the results:
 
+- the max with a heard neighbour whose memory did not change at the last tick is skipped where
+  the engine vouches that the robot already took it (``Skip``: ``swarm.sim.kinematic`` knows when
+  the links change);
 - the target is a function of the memory alone, so it is computed only when the memory changed,
   and not even then when a heard neighbour's last message carries this very memory (its target
   came with it): on a line or cycle that is about half of the changed memories during the flood;
 - the steering features and the steering MLP run for a block of ``BLOCK`` robots at once, the
   innermost loop over the block's robots (SIMD lanes), every robot's sums in the order of a
   per-robot loop (no fastmath: no reassociation, no fused multiply-add);
-- no integer division per robot, no allocation per tick beyond the two outputs, the inbox bound
-  check once per neighbour-list object.
+- no integer division per robot, no allocation per tick beyond the outputs.
+
+The kernel takes named arguments: three NamedTuples of arrays and numbers (``Weights``, ``Inputs``,
+``Outputs``), which numba compiles as structs.
 
 Threads are used for large batches only (``swarm.sim.kernels.PARALLEL_MIN_ROBOTS``).
 """
@@ -23,6 +28,7 @@ Threads are used for large batches only (``swarm.sim.kernels.PARALLEL_MIN_ROBOTS
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -33,23 +39,67 @@ RELU, TANH = 0, 1
 BLOCK = 128  # robots whose steering MLP runs together (SIMD lanes)
 
 
+class Weights(NamedTuple):
+    """A policy's weights and the readout's constants, as the kernel reads them (:func:`packed`)."""
+
+    projections: np.ndarray  # (P, 2) flood directions, unnormalised
+    norms: np.ndarray  # (P,) their lengths
+    unit: np.ndarray  # (P, 2) their unit vectors
+    tau_share: float  # the last Newton step's temperature, share of the width
+    newton_steps: int
+    steer_weights: np.ndarray  # layer l: [offset : offset + out * in], row-major (out, in)
+    steer_biases: np.ndarray  # (L, widest), zero-padded
+    steer_shapes: np.ndarray  # (L, 2) int64: (in, out) of layer l
+    activation: int  # RELU or TANH
+    output_scale_mps: float
+    rho_cap_m: float
+    v_max_mps: float
+    wheel_ratio: float  # half axle / offset: the saturation's |u_y| weight (swarm.core.robot.saturate_wheels)
+    hessian_eps: float  # flood_readout.HESSIAN_EPS
+    max_step: float  # flood_readout.MAX_STEP
+    tau_start: float  # flood_readout.TAU_START
+    rho_eps_m: float  # flood_readout.RHO_EPS_M
+
+
+class Skip(NamedTuple):
+    """Which heard messages a robot may leave out of its max (its result keeps every bit): robot i skips
+    inbox column j where ``same_lists[b, i]`` and ``settled[b, j]`` and both messages are valid.
+
+    ``settled (B, C)``: column j holds robot j's memory of the last call, which equals its memory of
+    the call before (``Outputs.unchanged`` of the last call); ``same_lists (B, N)``: robot i's
+    neighbour lists are those of the last call, and its own message (inbox column i) is its memory of
+    that call. Then i already took the max with j's memory, and again changes nothing (max is
+    idempotent). The engine that hands the outbox back as the next inbox knows both
+    (``swarm.sim.kinematic.KinematicSim``); :func:`no_skip` for anyone else."""
+
+    settled: np.ndarray  # (B, C) bool
+    same_lists: np.ndarray  # (B, N) bool
+
+
+class Inputs(NamedTuple):
+    poses: np.ndarray  # (B, N, 3)
+    inbox: np.ndarray  # (B, C, 2P + 3): columns 0..N-1 every robot's own last message
+    neighbour_index: np.ndarray  # (B, N, S) int32 into the inbox's columns, -1 ends a list
+    skip: Skip
+
+
+class Outputs(NamedTuple):
+    u_world: np.ndarray  # (B, N, 2)
+    outbox: np.ndarray  # (B, N, 2P + 3)
+    unchanged: np.ndarray  # (B, N) bool: the robot's memory is the one of its own last message
+
+
 @numba.njit(cache=True)
-def _target(
-    values,
-    p_count,
-    norms,
-    unit,
-    tau_share,
-    newton_steps,
-    hessian_eps,
-    max_step,
-    tau_start,
-    support,
-    ux,
-    uy,
-    weight,
-):
-    """The smoothed minimax centre of one memory (``FloodPolicy.target``; same steps)."""
+def _target(values, p_count, weights, support, ux, uy, weight):
+    """The smoothed minimax centre of one memory (``FloodPolicy.target``; same steps); ``support``,
+    ``ux``, ``uy``, ``weight``: scratch of length 2P."""
+    norms = weights.norms
+    unit = weights.unit
+    tau_share = weights.tau_share
+    newton_steps = weights.newton_steps
+    hessian_eps = weights.hessian_eps
+    max_step = weights.max_step
+    tau_start = weights.tau_start
     width = -np.inf
     bx = 0.0
     by = 0.0
@@ -113,45 +163,33 @@ def _target(
     return cx, cy
 
 
-def _flood_tick(
-    poses,
-    inbox,
-    neighbour_index,
-    projections,
-    norms,
-    unit,
-    tau_share,
-    newton_steps,
-    steer_weights,
-    steer_biases,
-    steer_shapes,
-    activation,
-    output_scale,
-    rho_cap,
-    v_max,
-    ratio,
-    hessian_eps,
-    max_step,
-    tau_start,
-    rho_eps,
-    block_size,
-    chunks,
-    unchanged_before,
-    unchanged_now,
-    u_world,
-    outbox,
-):
-    """One tick: poses ``(B, N, 3)``, inbox ``(B, C, 2P + 3)`` (columns 0..N-1: every robot's own last
-    message), neighbour lists ``(B, N, S)`` into the inbox's columns -> ``u_world (B, N, 2)``,
-    ``outbox (B, N, 2P + 3)``. Steering layers flattened: layer l has weights
-    ``steer_weights[offset : offset + out * in]`` (row-major ``(out, in)``),
-    ``steer_shapes[l] = (in, out)``.
+def _flood_tick(weights, inputs, outputs, block_size, chunks):
+    """One tick: ``weights`` (:class:`Weights`), ``inputs`` (:class:`Inputs`) -> ``outputs``
+    (:class:`Outputs`, written in place); ``chunks`` tasks, each with its own scratch.
 
     Robots go in blocks of ``block_size`` (a run-time value, so that LLVM vectorizes the lane loops
     instead of unrolling them): per robot the memory, the target and the steering features;
     then the steering MLP for the whole block at once, the innermost loop over the block's robots
     (SIMD lanes; every robot's sums keep the order of a per-robot loop, so the bits do not change);
     then per robot the saturation and the rotation to the world frame."""
+    poses = inputs.poses
+    inbox = inputs.inbox
+    neighbour_index = inputs.neighbour_index
+    settled = inputs.skip.settled
+    same_lists = inputs.skip.same_lists
+    u_world = outputs.u_world
+    outbox = outputs.outbox
+    unchanged_now = outputs.unchanged
+    projections = weights.projections
+    steer_weights = weights.steer_weights
+    steer_biases = weights.steer_biases
+    steer_shapes = weights.steer_shapes
+    activation = weights.activation
+    output_scale = weights.output_scale_mps
+    rho_cap = weights.rho_cap_m
+    v_max = weights.v_max_mps
+    ratio = weights.wheel_ratio
+    rho_eps = weights.rho_eps_m
     batch, count = poses.shape[0], poses.shape[1]
     rows = batch * count
     slots = neighbour_index.shape[2]
@@ -202,12 +240,13 @@ def _flood_tick(
                     values[p] = hi
                     values[p_count + p] = lo
                 heard = inbox[env, i, dim + 2] > 1.5  # flag 2: it has heard a neighbour at an earlier tick
+                may_skip = own_valid and same_lists[env, i]
                 for k in range(slots):
                     j = neighbour_index[env, i, k]
                     if j < 0:
                         break
                     heard = True
-                    if own_valid and unchanged_before[env, j] and inbox[env, j, dim + 2] > 0.0:
+                    if may_skip and settled[env, j] and inbox[env, j, dim + 2] > 0.0:
                         continue  # already in this robot's own memory: the max with it changes nothing
                     for d in range(dim):
                         values[d] = max(values[d], inbox[env, j, d])
@@ -238,21 +277,7 @@ def _flood_tick(
                                 reused = True
                                 break
                 if not reused:
-                    cx, cy = _target(
-                        values,
-                        p_count,
-                        norms,
-                        unit,
-                        tau_share,
-                        newton_steps,
-                        hessian_eps,
-                        max_step,
-                        tau_start,
-                        support,
-                        ux_all,
-                        uy_all,
-                        weight,
-                    )
+                    cx, cy = _target(values, p_count, weights, support, ux_all, uy_all, weight)
                 outbox[env, i, dim] = cx
                 outbox[env, i, dim + 1] = cy
                 heard_block[lane] = heard
@@ -325,9 +350,9 @@ def _flood_tick(
 _serial, _parallel = kernels.jit_serial_and_parallel(_flood_tick, error_model="numpy")
 
 
-def packed(policy) -> tuple:
-    """The policy's weights as the kernel's arguments (cached on the policy)."""
-    cached = getattr(policy, "_kernel_arguments", None)
+def packed(policy) -> Weights:
+    """The policy's weights as the kernel's :class:`Weights` (cached on the policy: they never change)."""
+    cached = getattr(policy, "_kernel_weights", None)
     if cached is not None:
         return cached
     layers = policy._steer
@@ -335,74 +360,64 @@ def packed(policy) -> tuple:
     biases = np.zeros((len(layers), widest))
     for index, (weight, bias) in enumerate(layers):
         biases[index, : weight.shape[0]] = 0.0 if bias is None else bias
-    arguments = (
-        np.ascontiguousarray(policy.projections),
-        np.ascontiguousarray(policy._norms),
-        np.ascontiguousarray(policy._unit),
-        policy._tau_share,
-        int(policy.model["newton_steps"]),
-        np.ascontiguousarray(np.concatenate([weight.ravel() for weight, _ in layers])),
-        biases,
-        np.array([[weight.shape[1], weight.shape[0]] for weight, _ in layers], dtype=np.int64),
-        RELU if policy.model["activation"] == "relu" else TANH,
-        policy.output_scale_mps,
-        float(policy.model["rho_cap_m"]),
-        policy.robot.v_max_mps,
-        policy.robot.half_axle_m / policy.robot.offset_m,
+    weights = Weights(
+        projections=np.ascontiguousarray(policy.projections),
+        norms=np.ascontiguousarray(policy._norms),
+        unit=np.ascontiguousarray(policy._unit),
+        tau_share=float(policy._tau_share),
+        newton_steps=int(policy.model["newton_steps"]),
+        steer_weights=np.ascontiguousarray(np.concatenate([weight.ravel() for weight, _ in layers])),
+        steer_biases=biases,
+        steer_shapes=np.array([[weight.shape[1], weight.shape[0]] for weight, _ in layers], dtype=np.int64),
+        activation=RELU if policy.model["activation"] == "relu" else TANH,
+        output_scale_mps=float(policy.output_scale_mps),
+        rho_cap_m=float(policy.model["rho_cap_m"]),
+        v_max_mps=float(policy.robot.v_max_mps),
+        wheel_ratio=float(policy.robot.half_axle_m / policy.robot.offset_m),
+        hessian_eps=float(flood_readout.HESSIAN_EPS),
+        max_step=float(flood_readout.MAX_STEP),
+        tau_start=float(flood_readout.TAU_START),
+        rho_eps_m=float(flood_readout.RHO_EPS_M),
     )
-    policy._kernel_arguments = arguments
-    return arguments
+    policy._kernel_weights = weights
+    return weights
 
 
-def act(policy, poses: np.ndarray, inbox: np.ndarray, heard) -> tuple[np.ndarray, np.ndarray]:
-    """``FloodPolicy.act``: ``(u_world (B, N, 2), outbox (B, N, 2P + 1))``."""
+def no_skip(batch: int, count: int, columns: int) -> Skip:
+    """Nothing skipped: every heard message takes part in the max."""
+    return Skip(np.zeros((batch, columns), dtype=np.bool_), np.zeros((batch, count), dtype=np.bool_))
 
+
+def act(policy, poses: np.ndarray, inbox: np.ndarray, heard, skip: Skip | None = None) -> Outputs:
+    """``FloodPolicy.act`` with what may be skipped (:class:`Skip`; None: nothing) -> :class:`Outputs`."""
     batch, count = poses.shape[:2]
     if inbox.ndim != 3 or inbox.shape[-1] != policy.message_dim or inbox.shape[:2] < (batch, count):
         raise ValueError(f"inbox of shape {inbox.shape}: expected (B, >= N, {policy.message_dim})")
-    checked = getattr(policy, "_checked_links", None)  # a fixed graph: the same Links every tick
-    if checked is None or checked[0] is not heard or checked[1] != inbox.shape[1]:
-        if heard.index.size and heard.index.max() >= inbox.shape[1]:
-            raise ValueError("a neighbour index points past the inbox")
-        policy._checked_links = (heard, inbox.shape[1])
-    u_world = np.empty((batch, count, 2))
-    outbox = np.empty((batch, count, policy.message_dim))
-    unchanged_now = np.empty((batch, count), dtype=np.bool_)
-    unchanged_before = _unchanged_before(policy, inbox, heard, batch, count)
-    parallel = batch * count >= kernels.PARALLEL_MIN_ROBOTS
-    kernel = _parallel if parallel else _serial
-    kernel(
+    if heard.index.size and heard.index.max() >= inbox.shape[1]:
+        raise ValueError("a neighbour index points past the inbox")
+    columns = inbox.shape[1]
+    if skip is None:
+        skip = no_skip(batch, count, columns)
+    elif skip.settled.shape != (batch, columns) or skip.same_lists.shape != (batch, count):
+        raise ValueError(
+            f"skip of shapes {skip.settled.shape}, {skip.same_lists.shape}: expected "
+            f"({batch}, {columns}) (one per inbox column) and ({batch}, {count})"
+        )
+    outputs = Outputs(
+        np.empty((batch, count, 2)),
+        np.empty((batch, count, policy.message_dim)),
+        np.empty((batch, count), dtype=np.bool_),
+    )
+    inputs = Inputs(
         np.ascontiguousarray(poses, dtype=np.float64),
         np.ascontiguousarray(inbox, dtype=np.float64),
         np.ascontiguousarray(heard.index),
-        *packed(policy),
-        flood_readout.HESSIAN_EPS,
-        flood_readout.MAX_STEP,
-        flood_readout.TAU_START,
-        flood_readout.RHO_EPS_M,
-        BLOCK,
-        4 * numba.get_num_threads() if parallel else 1,  # chunks, each with its own scratch
-        unchanged_before,
-        unchanged_now,
-        u_world,
-        outbox,
+        Skip(
+            np.ascontiguousarray(skip.settled, dtype=np.bool_),
+            np.ascontiguousarray(skip.same_lists, dtype=np.bool_),
+        ),
     )
-    policy._last_call = (outbox, heard, unchanged_now)
-    return u_world, outbox
-
-
-def _unchanged_before(policy, inbox: np.ndarray, heard, batch: int, count: int) -> np.ndarray:
-    """Per robot ``(B, N)``: may its message in ``inbox`` be skipped by the neighbours' max?
-
-    True only where the last call of this policy returned ``inbox`` itself as its outbox, over the same
-    neighbour lists ``heard`` (a fixed graph, no link faults: ``KinematicSim`` passes the outbox back as
-    the next inbox), and robot j's memory did not change in that call. Then every neighbour i with a
-    valid own message already took the max with j's previous memory, which equals j's current one, and
-    the max with it again is the identity (max is idempotent): skipped, the result keeps every bit. The
-    kernel also requires both messages valid, which covers an inbox whose rows were zeroed in place
-    (an environment reset); any other edit of a returned outbox before passing it back is not supported.
-    """
-    last = getattr(policy, "_last_call", None)
-    if last is not None and last[0] is inbox and last[1] is heard and inbox.shape[1] == count:
-        return last[2]
-    return np.zeros((batch, count), dtype=np.bool_)
+    parallel = batch * count >= kernels.PARALLEL_MIN_ROBOTS
+    kernel = _parallel if parallel else _serial
+    kernel(packed(policy), inputs, outputs, BLOCK, 4 * numba.get_num_threads() if parallel else 1)
+    return outputs

@@ -15,17 +15,47 @@ among those of ticks ``k-1-d .. k-d-A`` (``d`` the link's delay at tick k, ``A``
 limit), sent over the graph of its own tick. The controllers take one inbox row per sender, so the
 faulty path lays the last ``H`` ticks' messages side by side, ``(B, H*N, D)``, and the links of tick k
 point into it (age ``a`` of robot j at column ``(a-1)*N + j``).
+
+The max-flooding GNN (``swarm.sim.flood_kernel``) is called by the engine itself, with what it knows:
+without link faults the outbox of a tick is the next tick's inbox, so a neighbour whose memory did not
+change and whose link was there at the last tick sends nothing new (``flood_kernel.Skip``); the
+engine compares the links of consecutive ticks, and keeps that state itself (:class:`_FloodCall`).
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 
 from swarm.core.faults import DROPPED, HEARD, LOST, LinkFaults, usable
 from swarm.core.robot import RobotParams, controlled_point
-from swarm.sim import kernels
+from swarm.sim import flood_kernel, kernels
 from swarm.sim.controllers import BatchedController
 from swarm.sim.links import Links
+from swarm.sim.policy import FloodPolicy
+
+
+class _FloodCall(NamedTuple):
+    """The engine's last call of the flood kernel: what it returned (the inbox of the next tick, as long
+    as nobody replaced it), the links it heard over and which robots' memories did not change."""
+
+    outbox: np.ndarray
+    heard: Links
+    unchanged: np.ndarray  # (B, N) bool
+
+
+def same_lists(now: Links, before: Links) -> np.ndarray:
+    """``(B, N)`` bool: robot i hears over the same neighbour list in ``now`` as in ``before``."""
+    if now is before:
+        return np.ones(now.shape, dtype=bool)
+    if now.shape != before.shape:
+        return np.zeros(now.shape, dtype=bool)
+    a, b = now.index, before.index
+    slots = max(a.shape[2], b.shape[2])  # lists end at the first -1: pad the shorter with -1
+    a = np.pad(a, ((0, 0), (0, 0), (0, slots - a.shape[2])), constant_values=-1)
+    b = np.pad(b, ((0, 0), (0, 0), (0, slots - b.shape[2])), constant_values=-1)
+    return np.all(a == b, axis=-1)
 
 
 class KinematicSim:
@@ -70,6 +100,8 @@ class KinematicSim:
         self.link_faults = link_faults if faulty else None
         self.message_max_age_ticks = int(message_max_age_ticks)
         self._history: list[tuple[np.ndarray, Links]] = []  # faulty path: (outbox, links), newest first
+        self._flood = isinstance(controller, FloodPolicy)
+        self._flood_call: _FloodCall | None = None  # the flood kernel's skip state (module docstring)
         self.fault_counts = {"dropped_by_fault": 0, "lost_by_fault": 0, "delayed_by_fault": 0}
         """Faulty path, summed over environments and ticks: (robot, neighbour) pairs whose newest
         candidate message the schedule dropped (link down) or lost, and pairs heard with a delay."""
@@ -113,7 +145,10 @@ class KinematicSim:
         become what the robots may hear next. :meth:`step` is ``act`` and the motion."""
         links = self.links()
         if self.link_faults is None:
-            u_world, outbox = self.controller.act(self.poses, self.points, self.inbox, self._sent_over)
+            if self._flood:
+                u_world, outbox = self._flood_act()
+            else:
+                u_world, outbox = self.controller.act(self.poses, self.points, self.inbox, self._sent_over)
             self.inbox = outbox
             self._sent_over = links
             return u_world
@@ -124,6 +159,20 @@ class KinematicSim:
         keep = self.link_faults.max_delay_ticks + self.message_max_age_ticks
         self._history = [(outbox, links), *self._history][:keep]
         return u_world
+
+    def _flood_act(self) -> tuple[np.ndarray, np.ndarray]:
+        """The flood GNN's tick without link faults, skipping what ``flood_kernel.Skip`` allows: the
+        inbox must be the outbox of the last call (not replaced since; in-place edits other than
+        zeroing whole rows, which invalidates them, are not supported), robot i's neighbour list the
+        one of that call, and neighbour j's memory unchanged in it."""
+        heard, last = self._sent_over, self._flood_call
+        skip = None
+        if last is not None and last.outbox is self.inbox:
+            skip = flood_kernel.Skip(last.unchanged, same_lists(heard, last.heard))
+        assert isinstance(self.controller, FloodPolicy)  # self._flood
+        outputs = flood_kernel.act(self.controller, self.poses, self.inbox, heard, skip)
+        self._flood_call = _FloodCall(outputs.outbox, heard, outputs.unchanged)
+        return outputs.u_world, outputs.outbox
 
     def _faulty_inbox(self) -> tuple[Links, np.ndarray]:
         """Who hears which past message at the current tick under the link faults, as links into the
@@ -171,7 +220,12 @@ class KinematicSim:
 
     def step(self) -> np.ndarray:
         """Advance one control period; returns the poses ``(B, N, 3)``, updated in place."""
-        u_world = self.act()
+        return self.move(self.act())
+
+    def move(self, u_world: np.ndarray) -> np.ndarray:
+        """The motion half of :meth:`step`: every robot drives with the world velocity ``u_world (B, N, 2)``
+        of its controlled point for one control period (saturated, exact unicycle step); the tick
+        advances. Returns the poses, updated in place."""
         robot = self.robot
         kernels.advance_unicycles(
             self.poses.reshape(-1, 3),
@@ -193,13 +247,33 @@ class KinematicSim:
         # last bits and would make the kept environments drift from a run that never had the others
         self.headings = np.ascontiguousarray(self.headings[environments])
         self.points = np.ascontiguousarray(self.points[environments])
+        last, inbox = self._flood_call, self.inbox
         self.inbox = self.inbox[environments]
+        if last is not None and last.outbox is inbox:
+            self._flood_call = _FloodCall(
+                self.inbox, last.heard.select(environments), last.unchanged[environments]
+            )
         self._sent_over = self._sent_over.select(environments)
         self._history = [
             (outbox[environments], links.select(environments)) for outbox, links in self._history
         ]
         if self._fixed_links is not None:
             self._fixed_links = self._fixed_links.select(environments)
+
+    def restart(self, environments: np.ndarray, poses: np.ndarray) -> None:
+        """Environments ``environments`` (indices) start over from ``poses (E, N, 3)`` at the current tick,
+        as at tick 0: every robot remembers nothing and has heard nobody (their messages zeroed, no
+        links of the last tick, no older messages left to hear under link faults)."""
+        environments = np.asarray(environments)
+        self.poses[environments] = poses
+        theta = self.poses[environments, :, 2]
+        self.headings[environments] = np.stack([np.cos(theta), np.sin(theta)], axis=-1)
+        self.points[environments] = controlled_point(self.poses[environments], self.robot.offset_m)
+        self.inbox[environments] = 0.0
+        self._sent_over = _cut(self._sent_over, environments)
+        self._history = [(outbox, _cut(links, environments)) for outbox, links in self._history]
+        for outbox, _ in self._history:
+            outbox[environments] = 0.0
 
     def rollout(self, steps: int) -> np.ndarray:
         """Run ``steps`` ticks; returns poses ``(steps + 1, B, N, 3)`` including the start."""
@@ -208,3 +282,10 @@ class KinematicSim:
         for k in range(steps):
             trajectory[k + 1] = self.step()
         return trajectory
+
+
+def _cut(links: Links, environments: np.ndarray) -> Links:
+    """``links`` with nobody hearing anybody in ``environments``."""
+    index, weight = links.index.copy(), links.weight.copy()
+    index[environments], weight[environments] = -1, 0.0
+    return Links(index, weight)

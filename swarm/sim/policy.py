@@ -484,10 +484,12 @@ class FloodPolicy:
     def act(
         self, poses: np.ndarray, points: np.ndarray, inbox: np.ndarray, heard: Links
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Batched (``swarm.sim.controllers``): the compiled kernel ``swarm.sim.flood_kernel`` (numba)."""
+        """Batched (``swarm.sim.controllers``): the compiled kernel ``swarm.sim.flood_kernel`` (numba);
+        ``KinematicSim`` calls that kernel itself, with what it may skip."""
         from swarm.sim import flood_kernel
 
-        return flood_kernel.act(self, poses, inbox, heard)
+        outputs = flood_kernel.act(self, poses, inbox, heard)
+        return outputs.u_world, outputs.outbox
 
     def act_one(
         self, pose: np.ndarray, neighbour_messages: np.ndarray, robot_count: int | None = None

@@ -1,0 +1,148 @@
+"""Every numba kernel of the kinematic engine, run once with numba's bounds checks on.
+
+Compiled without them (the default), an index past an array reads whatever lies there: the flood
+kernel once read a skip flag past its ``(B, N)`` array under a delay fault, and the last environments
+of each batch skipped messages on garbage (issue 18). In a fresh process with ``NUMBA_BOUNDSCHECK=1``
+and a fresh ``NUMBA_CACHE_DIR`` (cached code compiled without the checks must not be reused), the
+script below runs the engine for every controller kind (``gnn`` once per shipped model kind) on a
+fixed and on a disk graph, without faults and under every link fault kind (a delay long enough for
+an inbox of several ticks), with a mid-run restart of one environment and a ``keep`` of some, the
+sweep's convergence loop, serial and then with every kernel threaded. An index out of bounds raises
+IndexError and the script fails. It then requires that every compiled kernel of ``swarm.sim.kernels``,
+``swarm.sim.mec_kernels`` and ``swarm.sim.flood_kernel`` has run (a new kernel is checked for free,
+or this test names it). Process faults need the pybullet engine (``tests/test_contract.py`` checks
+that the kinematic engine refuses them).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+SCRIPT = r"""
+import json, sys, types
+import numba
+import numpy as np
+from numba.core.dispatcher import Dispatcher
+
+
+@numba.njit
+def past(values, index):
+    return values[index]
+
+
+try:  # the checks are on, or this run proves nothing
+    past(np.zeros(2), 5)
+    sys.exit("NUMBA_BOUNDSCHECK is not in effect")
+except IndexError:
+    pass
+
+from pathlib import Path
+from swarm.core.faults import LINK_FAULTS, LinkFaults
+from swarm.core.robot import RobotParams
+from swarm.scenarios.sweep import converge_batch
+from swarm.sim import flood_kernel, kernels, mec_kernels
+from swarm.sim.controller_kinds import CONTROLLER_KINDS, ControllerArgs, batched_controller
+from swarm.sim.kinematic import KinematicSim
+from swarm.sim.policy import load_policy
+from swarm.core import graphs
+
+robot = RobotParams()
+models = {}
+for path in sorted(Path(sys.argv[1]).glob("*.npz")):
+    models.setdefault(load_policy(path).kind, str(path))
+variants = []
+for name, kind in CONTROLLER_KINDS.items():
+    variants += [(name, model) for model in models.values()] if "model" in kind.options else [(name, None)]
+
+
+def link_faults(kind):
+    fault = {"kind": kind, "at_s": 0.1, "until_s": 0.6, "link": (0, 1), "p": 0.4, "ticks": 3}
+    if kind == "restore_link":
+        return [{"kind": "drop_link", "at_s": 0.05, "link": (0, 1)}, {**fault, "at_s": 0.3}]
+    return [fault]
+
+
+batch, count = 3, 5
+rng = np.random.default_rng(0)
+
+
+def start():
+    xy = rng.uniform(-1.5, 1.5, (batch, count, 2))
+    return np.concatenate([xy, rng.uniform(-3, 3, (batch, count, 1))], -1)
+
+
+runs = 0
+for threshold in (1 << 62, 0):  # serial, then every kernel threaded
+    kernels.PARALLEL_MIN_ROBOTS = threshold
+    for name, model in variants:
+        args = ControllerArgs(robot=robot, robot_count=count, policy=model)
+        for graph in ({"adjacency": graphs.line(count)}, {"disk_radius_m": 1.2}):
+            for kind in (None, *LINK_FAULTS):
+                faults = None if kind is None else LinkFaults(link_faults(kind), 0.05, 1)
+                sim = KinematicSim(
+                    robot, batched_controller(name, args), 0.05, start(), link_faults=faults,
+                    message_max_age_ticks=2, **graph,
+                )
+                for tick in range(16):
+                    if tick == 8:
+                        sim.restart(np.array([2]), start()[:1])
+                    sim.step()
+                sim.keep(np.array([0, 2]))
+                for _ in range(3):
+                    sim.step()
+                runs += 1
+        sim = KinematicSim(robot, batched_controller(name, args), 0.05, start(), disk_radius_m=1.2)
+        converge_batch(sim, 0.5, 1.0, 0.2, disconnected=np.zeros(batch, dtype=bool))
+known = np.zeros(2 * 4 + 1)
+mec_kernels.merge_support(known, np.ones(2 * 4 + 1), np.ones(4), np.zeros(4), 4)  # not on the engine's path
+
+
+def dispatchers(module):
+    for value in vars(module).values():
+        if isinstance(value, Dispatcher):
+            yield value
+        elif isinstance(value, types.FunctionType) and value.__closure__:
+            cells = [cell.cell_contents for cell in value.__closure__]
+            yield from (cell for cell in cells if isinstance(cell, Dispatcher))
+
+
+found = {id(d): d for module in (kernels, mec_kernels, flood_kernel) for d in dispatchers(module)}
+never = sorted(
+    d.py_func.__qualname__
+    for d in found.values()
+    if not d.signatures and d.targetoptions.get("inline") != "always"
+)
+print(json.dumps({"runs": runs, "kernels": len(found), "never_run": never}))
+"""
+
+
+@pytest.mark.slow
+def test_every_engine_kernel_runs_within_bounds(tmp_path):
+    script = tmp_path / "bounds.py"
+    script.write_text(SCRIPT)
+    environment = {
+        **os.environ,
+        "NUMBA_BOUNDSCHECK": "1",
+        "NUMBA_CACHE_DIR": str(tmp_path / "cache"),
+        "NUMBA_NUM_THREADS": "2",
+        "PYTHONPATH": str(ROOT),
+    }
+    done = subprocess.run(
+        [sys.executable, str(script), str(ROOT / "models")],
+        env=environment,
+        capture_output=True,
+        text=True,
+        timeout=3000,
+    )
+    assert done.returncode == 0, done.stderr[-4000:]
+    report = json.loads(done.stdout.strip().splitlines()[-1])
+    assert report["never_run"] == [], report
+    assert report["kernels"] >= 20 and report["runs"] > 100, report
