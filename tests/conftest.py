@@ -12,8 +12,8 @@ and the full suite (``.ci/run``) runs everything.
 Hypothesis profiles: ``ci`` (selected when the environment has ``CI=true`` or ``CI=1``) derandomizes,
 so every CI run draws the same examples, and uses no example database, so a run does not depend on
 what earlier runs found; ``dev`` (otherwise) draws fresh examples each run and keeps the database.
-Both print the ``@reproduce_failure`` blob of a failing example. ``HYPOTHESIS_PROFILE=NAME`` picks one
-by name.
+Both print the ``@reproduce_failure`` blob of a failing example and have no wall-clock limits
+(deadline, too-slow health check). ``HYPOTHESIS_PROFILE=NAME`` picks one by name.
 """
 
 from __future__ import annotations
@@ -21,10 +21,13 @@ from __future__ import annotations
 import os
 from collections.abc import Mapping
 
-from hypothesis import settings
+from hypothesis import HealthCheck, settings
 
-settings.register_profile("dev", print_blob=True)
-settings.register_profile("ci", derandomize=True, database=None, print_blob=True)
+# No wall-clock budgets (the suite must pass on a loaded machine): no per-example deadline, no
+# too-slow health check; the tests that set their own settings keep their max_examples.
+UNTIMED = {"deadline": None, "suppress_health_check": [HealthCheck.too_slow], "print_blob": True}
+settings.register_profile("dev", **UNTIMED)
+settings.register_profile("ci", derandomize=True, database=None, **UNTIMED)
 
 
 def hypothesis_profile(environ: Mapping[str, str]) -> str:
