@@ -11,7 +11,7 @@ file that does not exist stops the script too: "no tests ran" is not a catch. ``
 the same tests on the unmutated copy first and expects them to pass (a test that fails anyway catches
 nothing).
 
-Run: ``python bench/mutations.py [--baseline] [--only NAME ...]`` (under ``nice``; ~20 min on two cores);
+Run: ``python bench/mutations.py [--baseline] [--only NAME ...]`` (under ``nice``; tens of minutes);
 ``--list`` shows each mutation, its tests and whether its code is found, and runs nothing. A full run
 writes ``bench/results/mutations.md`` and ``.json``; a run with ``--only`` writes
 ``runs/mutations-only.md`` and ``.json`` unless ``--out`` says otherwise (a partial run is no result to
