@@ -2,14 +2,20 @@
 project, and the tests that guard that behaviour must then fail.
 
 For every mutation below the script copies the working tree (without ``.git`` and run outputs) to a
-temporary directory, replaces one exact piece of code (the script stops if the piece is not found
-exactly once: the code moved and the mutation must follow it), runs the named tests there with
-``python -m pytest -x -q`` and expects a non-zero exit. ``--baseline`` also runs the same tests on the
-unmutated copy first and expects them to pass (a test that fails anyway catches nothing).
+temporary directory, replaces one piece of code (an exact string, or with ``regex=True`` a Python
+regular expression whose replacement may use its groups, so that a mutation survives a renamed
+variable or a reworded comment; the script stops if the piece is not found exactly once: the code moved
+and the mutation must follow it), runs the named tests there with ``python -m pytest -x -q`` and
+expects them to fail (pytest's exit 1; exit 2, an error while collecting, also counts). A named test
+file that does not exist stops the script too: "no tests ran" is not a catch. ``--baseline`` also runs
+the same tests on the unmutated copy first and expects them to pass (a test that fails anyway catches
+nothing).
 
-Run: ``python bench/mutations.py [--baseline] [--only NAME ...]`` (under ``nice``; ~10 min on two cores).
-Writes ``bench/results/mutations.md`` and ``.json``. Exit status 0 when every mutation was caught, 1
-otherwise, 2 for bad arguments.
+Run: ``python bench/mutations.py [--baseline] [--only NAME ...]`` (under ``nice``; tens of minutes);
+``--list`` shows each mutation, its tests and whether its code is found, and runs nothing. A full run
+writes ``bench/results/mutations.md`` and ``.json``; a run with ``--only`` writes
+``runs/mutations-only.md`` and ``.json`` unless ``--out`` says otherwise (a partial run is no result to
+commit). Exit status 0 when every mutation was caught, 1 otherwise, 2 for bad arguments.
 """
 
 from __future__ import annotations
@@ -17,6 +23,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -37,6 +44,16 @@ class Mutation:
     before: str
     after: str
     tests: tuple[str, ...]
+    regex: bool = False  # before: a regular expression (re.MULTILINE); after: its replacement template
+
+    def found(self, text: str) -> int:
+        """How many times the code to mutate occurs in ``text``."""
+        return len(re.findall(self.before, text, re.MULTILINE)) if self.regex else text.count(self.before)
+
+    def mutated(self, text: str) -> str:
+        if self.regex:
+            return re.sub(self.before, self.after, text, count=1, flags=re.MULTILINE)
+        return text.replace(self.before, self.after)
 
 
 MUTATIONS = [
@@ -160,6 +177,66 @@ MUTATIONS = [
         """        del load_policy, PolicyFormatError""",
         ("tests/test_exit_codes.py::test_a_bad_model_file_is_one_line_exit_2_before_anything_starts",),
     ),
+    # ------------------------------------------------------------------------ issue 18's mutations
+    Mutation(
+        "pose-window-open-before-first-pose",
+        "an agent believes any tick until its first genuine pose (PoseWindow.limit before the first pose)",
+        "swarm/runtime/ticks.py",
+        r"(if self\.tick < 0:[^\n]*\n\s*)return 0\b",
+        r"\g<1>return 2**62",
+        ("tests/test_ticks.py::test_before_its_first_pose_an_agent_believes_tick_zero_only",),
+        regex=True,
+    ),
+    Mutation(
+        "same-tick-message-replay-accepted",
+        "a neighbour's message of a tick already received is taken again, overwriting the genuine payload",
+        "robot_agent/agent.py",
+        r"if tick <= newest\.get\(j, -1\):",
+        "if tick < newest.get(j, -1):",
+        (
+            "tests/test_outside_attacks.py::test_a_same_tick_message_replay_does_not_overwrite_the_genuine_one",
+        ),
+        regex=True,
+    ),
+    Mutation(
+        "incomplete-converged-run-exits-0",
+        "swarm run exits 0 for an incomplete run whose swarm had already converged (README: 1)",
+        "swarm/cli.py",
+        r"(print\(f\"swarm run: run incomplete: [^\n]*\n\s*)return [^\n]+",
+        r'\g<1>return 0 if outcome["converged"] else 1',
+        ("tests/test_exit_codes.py::test_a_run_killed_after_it_converged_is_exit_1_incomplete",),
+        regex=True,
+    ),
+    Mutation(
+        "flood-skip-without-same-lists",
+        "the flood kernel skips an unchanged neighbour's message without checking that the robot's "
+        "neighbour lists are those of the last tick",
+        "swarm/sim/flood_kernel.py",
+        r"may_skip = own_valid and same_lists\[env, i\]",
+        "may_skip = own_valid",
+        ("tests/test_flood.py",),
+        regex=True,
+    ),
+    Mutation(
+        "batched-flood-merge-without-tie-break",
+        "the batched mec_flood merge keeps the first of two support points with equal projections "
+        "(no tie-break by x, then y; merge_support, the per-robot form, keeps it)",
+        "swarm/core/mec.py",
+        r"(pk = best\[m\]\n\s*)if pq > pk or \(pq == pk[^\n]*:",
+        r"\g<1>if pq > pk:",
+        ("tests/test_mec.py",),
+        regex=True,
+    ),
+    Mutation(
+        "welzl-circle-without-rounding-tolerance",
+        "welzl_circle's inside test without the coordinate-rounding term (99bdc36's fix; a circle up to "
+        "twice too big for tiny swarms far from the origin)",
+        "swarm/core/mec.py",
+        r"(\btol = [^\n]*?)\s*\+\s*1e-14 \* \w+",
+        r"\g<1>",
+        ("tests/test_circle.py",),
+        regex=True,
+    ),
 ]
 
 
@@ -191,21 +268,62 @@ def _pytest(root: Path, tests: tuple[str, ...]) -> tuple[int, str, float]:
 def apply(root: Path, mutation: Mutation) -> None:
     path = root / mutation.path
     text = path.read_text()
-    found = text.count(mutation.before)
+    found = mutation.found(text)
     if found != 1:
         raise SystemExit(f"{mutation.name}: the code to mutate was found {found} times in {mutation.path}")
-    path.write_text(text.replace(mutation.before, mutation.after))
+    mutated = mutation.mutated(text)
+    assert mutated != text, mutation.name
+    path.write_text(mutated)
+
+
+def missing_tests(root: Path, mutation: Mutation) -> list[str]:
+    """The named tests whose file is not in ``root`` (pytest would exit 4: no tests ran)."""
+    return [test for test in mutation.tests if not (root / test.split("::")[0]).exists()]
+
+
+def is_caught(status: int) -> bool:
+    """pytest's exit 1 (a test failed) or 2 (interrupted: a collection error); not 3-5 (internal
+    error, usage error, no tests collected) nor 0."""
+    return status in (1, 2)
+
+
+def list_mutations() -> int:
+    """Each mutation, where and how often its code is found now, and its tests (0 when every one is
+    found exactly once and every test file exists)."""
+    ready = True
+    for mutation in MUTATIONS:
+        path = PROJECT_ROOT / mutation.path
+        found = mutation.found(path.read_text()) if path.exists() else 0
+        missing = missing_tests(PROJECT_ROOT, mutation)
+        ready = ready and found == 1 and not missing
+        state = "ok" if found == 1 and not missing else f"code found {found} times"
+        if missing:
+            state += f", no such test file: {' '.join(missing)}"
+        print(f"{mutation.name}: {mutation.what}\n  {mutation.path} [{state}]")
+        print(f"  tests: {' '.join(mutation.tests)}")
+    return 0 if ready else 1
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=" ".join(__doc__.split("\n\n")[0].split()))
     parser.add_argument("--baseline", action="store_true", help="run each mutation's tests unmutated first")
-    parser.add_argument("--only", nargs="+", help="these mutations only")
-    parser.add_argument("--out", default=str(RESULTS / "mutations"), help="results, without suffix")
+    parser.add_argument("--only", nargs="+", metavar="NAME", help="these mutations only (see --list)")
+    parser.add_argument(
+        "--out",
+        help="results, without suffix (default: bench/results/mutations; with --only runs/mutations-only)",
+    )
+    parser.add_argument("--list", action="store_true", help="list them and whether their code is found")
     args = parser.parse_args(argv)
+    if args.list:
+        return list_mutations()
     chosen = [m for m in MUTATIONS if not args.only or m.name in args.only]
     if args.only and len(chosen) != len(args.only):
         parser.error(f"unknown mutation; known: {', '.join(m.name for m in MUTATIONS)}")
+    if args.out is None:
+        args.out = str(PROJECT_ROOT / "runs" / "mutations-only" if args.only else RESULTS / "mutations")
+    for mutation in chosen:  # before anything runs: a missing test file would read as caught
+        if missing := missing_tests(PROJECT_ROOT, mutation):
+            raise SystemExit(f"{mutation.name}: no such test file: {' '.join(missing)}")
     results = []
     for mutation in chosen:
         entry = {
@@ -225,7 +343,7 @@ def main(argv: list[str] | None = None) -> int:
             _copy(root)
             apply(root, mutation)
             status, last, wall_s = _pytest(root, mutation.tests)
-        entry.update(status=status, last_line=last, wall_s=wall_s, caught=status != 0)
+        entry.update(status=status, last_line=last, wall_s=wall_s, caught=is_caught(status))
         if args.baseline:
             entry["caught"] = entry["caught"] and entry["baseline"]["status"] == 0
         results.append(entry)

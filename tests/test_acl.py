@@ -227,6 +227,7 @@ def rogue(endpoint: str, run: str, robot: int, count: int, credentials: str, out
     out.write_text(json.dumps(report))
 
 
+@pytest.mark.runtime
 def test_acl_run_converges_and_a_rogue_robot_reaches_only_its_neighbourhood(tmp_path):
     import zenoh
 

@@ -1,9 +1,10 @@
 """Bad input to every command of the project: one clear line on stderr, a non-zero exit, no traceback.
 
-Each case runs the real command in a subprocess (``swarm``, ``python -m robot_agent`` and the
-``robot-agent`` script, ``python -m sim_server``, ``python -m robot_agent.central``, ``python -m
-swarm.runtime.acl``) and checks its exit status, that stderr is exactly one line naming the problem, and for
-the agents that an unreachable endpoint is given up after a bounded time.
+Each case of ``swarm`` runs its ``main`` in-process; the others run the real command in a
+subprocess (``python -m robot_agent`` and the ``robot-agent`` script, ``python -m sim_server``,
+``python -m robot_agent.central``, ``python -m swarm.runtime.acl``). Each checks the exit status, that
+stderr is exactly one line naming the problem, and for the agents that an unreachable endpoint is
+given up after a bounded time.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from pathlib import Path
 import pytest
 import yaml
 
+from swarm.cli import main
 from swarm.runtime.procs import free_tcp_port
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
@@ -87,18 +89,27 @@ def files(tmp_path_factory) -> dict[str, Path]:
     ],
     ids=lambda value: " ".join(value) if isinstance(value, list) else None,
 )
-def test_swarm_commands(files, tmp_path, args, expected):
+def test_swarm_commands(files, tmp_path, monkeypatch, capsys, args, expected):
+    """In-process (``swarm.cli.main``, what the console script calls; tests/test_cli.py runs the
+    installed script once): exit 2, no traceback, one stderr line."""
     names = {**{name: str(path) for name, path in files.items()}, "out": str(tmp_path / "out")}
-    command = [PYTHON, "-m", "swarm.cli", *(arg.format(**names) for arg in args), "--quiet"]
+    argv = [*(arg.format(**names) for arg in args), "--quiet"]
     if args[0] in ("train", "fly"):
-        command.remove("--quiet")  # train has no --quiet
-    result = one_line_error(command, expected)
-    assert result.returncode == 2
+        argv.remove("--quiet")  # train has no --quiet
+    monkeypatch.chdir(PROJECT_ROOT)  # as the subprocess ran: relative paths from the project root
+    try:
+        code = main(argv)
+    except SystemExit as exit_info:  # argparse's usage errors
+        code = exit_info.code
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert code == 2, lines
+    assert len(lines) == 1 and expected in lines[0], (expected, lines)
 
 
 # ----------------------------------------------------------------------------- robot agents
 
 
+@pytest.mark.runtime
 def test_agent_gives_up_on_an_unreachable_endpoint_after_its_startup_timeout():
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"  # nothing listens there
     start_s = time.monotonic()
@@ -110,6 +121,7 @@ def test_agent_gives_up_on_an_unreachable_endpoint_after_its_startup_timeout():
     assert time.monotonic() - start_s >= 1.4  # it waited its timeout (not hanging: one_line_error's 60 s)
 
 
+@pytest.mark.runtime
 def test_central_gives_up_on_an_unreachable_endpoint_after_its_startup_timeout():
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
     start_s = time.monotonic()
@@ -194,6 +206,7 @@ def sim_of_three(tmp_path_factory):
         server.wait(timeout=10)
 
 
+@pytest.mark.runtime
 @pytest.mark.parametrize("run", [["--run", "three"], []], ids=["with --run", "discovering the run"])
 def test_agent_with_a_robot_id_the_run_does_not_have(sim_of_three, run):
     endpoint, _ = sim_of_three
@@ -204,6 +217,7 @@ def test_agent_with_a_robot_id_the_run_does_not_have(sim_of_three, run):
     assert "no robot 7 in this run of 3 robots" in result.stderr and result.returncode == 1
 
 
+@pytest.mark.runtime
 def test_sim_server_on_a_port_in_use(sim_of_three, tmp_path):
     endpoint, _ = sim_of_three  # its server listens there already
     result = one_line_error(

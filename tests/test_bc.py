@@ -30,6 +30,7 @@ def small_data(tmp_path_factory):
     return path
 
 
+@pytest.mark.slow
 def test_default_recipe_trains_and_exports(small_data, tmp_path):
     config = make_config("default", {"data": str(small_data), "out": str(tmp_path / "run"), "epochs": 3})
     policy_path = train(quiet(config))
@@ -43,6 +44,7 @@ def test_default_recipe_trains_and_exports(small_data, tmp_path):
     assert policy.metadata["training"]["algo"] == "bc"
 
 
+@pytest.mark.slow
 def test_thesis_preset_and_seeding(small_data, tmp_path):
     overrides = {"data": str(small_data), "epochs": 1, "batch_size": 256}
     first = train(quiet(make_config("thesis", {**overrides, "out": str(tmp_path / "a")})))
@@ -62,6 +64,7 @@ def test_bad_options(small_data):
         make_config("default", {"data": "missing.npz"})
 
 
+@pytest.mark.slow
 def test_cli_collect_train_and_run_a_gnn_scenario(tmp_path, capsys):
     data = tmp_path / "bc.npz"
     assert (

@@ -8,8 +8,10 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "bench"))
 
 import bench_runtime
+import pytest
 
 
+@pytest.mark.runtime
 def test_bare_agents_shadow_every_tick_with_the_real_payloads(tmp_path: Path) -> None:
     # 1200 lockstep ticks: the run (which waits for its real agents only) must not end before the
     # bare agents, started beside it once the server's address is in its log, are up on a loaded machine

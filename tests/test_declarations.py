@@ -20,12 +20,15 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 import yaml
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(PROJECT_ROOT / "tests"))
 
 import outside  # noqa: E402
+
+pytestmark = pytest.mark.runtime  # real processes: the fast tier leaves it out
 
 COUNT = 6
 

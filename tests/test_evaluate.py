@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 import yaml
 
 from swarm.cli import main
@@ -23,6 +24,7 @@ PROJECT_ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_MODEL = PROJECT_ROOT / "models" / "gnn_default.npz"
 
 
+@pytest.mark.slow
 def test_evaluate_tiny_grid_shares_cells_with_sweep(tmp_path, capsys):
     sweep_dir, out = tmp_path / "sweep", tmp_path / "eval"
     assert (
@@ -120,6 +122,7 @@ def test_disconnection_is_recorded_on_disk_graphs():
     assert cell["disconnected"].all()
 
 
+@pytest.mark.slow
 def test_dagger_tiny_run_writes_outputs_and_a_loadable_policy(tmp_path):
     data = collect(collect_config(samples=3000, graphs=("cycle",), sizes=(4,)), progress=False).save(
         tmp_path / "d.npz"

@@ -7,7 +7,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import subprocess
 import sys
 import zipfile
 from pathlib import Path
@@ -18,12 +17,16 @@ import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from test_runtime import Run, scenario_file
+from test_runtime import Run, max_pairwise_of, scenario_file
+
+from swarm.cli import main
+from swarm.scenarios.results import read_trajectory
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 MODEL = PROJECT_ROOT / "models" / "gnn_default.npz"
 
 
+@pytest.mark.runtime
 def test_a_sim_server_killed_from_outside_is_exit_1_not_bad_input(tmp_path):
     out = tmp_path / "out"
     run = Run(scenario_file(tmp_path, "cycle-local_consensus", sim__duration=120.0), out)
@@ -71,7 +74,8 @@ def _bad_models(tmp_path: Path) -> dict[str, tuple[Path, str]]:
 
 
 @pytest.mark.parametrize("engine", ["kinematic", "pybullet"])
-def test_a_bad_model_file_is_one_line_exit_2_before_anything_starts(tmp_path, engine):
+def test_a_bad_model_file_is_one_line_exit_2_before_anything_starts(tmp_path, engine, capsys):
+    """In-process (``swarm.cli.main``): the file is read before any process would start."""
     for name, (model, reason) in _bad_models(tmp_path).items():
         data = yaml.safe_load((PROJECT_ROOT / "scenarios/thesis/cycle-gnn.yaml").read_text())
         data["controller"]["model"] = str(model)
@@ -79,15 +83,37 @@ def test_a_bad_model_file_is_one_line_exit_2_before_anything_starts(tmp_path, en
         scenario = tmp_path / f"{name}.yaml"
         scenario.write_text(yaml.safe_dump(data))
         out = tmp_path / f"out-{engine}-{name}"
-        done = subprocess.run(
-            [sys.executable, "-m", "swarm.cli", "run", str(scenario), "--engine", engine, "--out", str(out)],
-            capture_output=True,
-            text=True,
-            timeout=120,
-            cwd=PROJECT_ROOT,
-        )
-        lines = done.stderr.strip().splitlines()
-        assert done.returncode == 2, (name, done.stderr)
+        code = main(["run", str(scenario), "--engine", engine, "--out", str(out)])
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert code == 2, (name, lines)
         assert len(lines) == 1 and str(model) in lines[0] and reason in lines[0], (name, lines)
-        assert "Traceback" not in done.stderr
         assert not (out / "trajectory.jsonl").exists() and not (out / "logs").exists(), name  # nothing ran
+
+
+@pytest.mark.runtime
+def test_a_run_killed_after_it_converged_is_exit_1_incomplete(tmp_path):
+    """README: exit 1 also for a run that could not complete, even one whose swarm had already met
+    its threshold: a kill_server fault at 6 s of a 20 s run, the 4 robots within 0.8 m long before."""
+    data = yaml.safe_load((PROJECT_ROOT / "scenarios/faults/kill-server.yaml").read_text())
+    data["robots"]["count"] = 4
+    data["robots"]["init"]["random"].update(x=[-1, 1], y=[-1, 1])
+    data["sim"]["duration"] = 20.0
+    data["success"]["threshold"]["pybullet"] = 0.8
+    data["faults"] = [{"at": 6.0, "kind": "kill_server"}]
+    scenario = tmp_path / "killed-after-convergence.yaml"
+    scenario.write_text(yaml.safe_dump(data))
+    out = tmp_path / "out"
+    run = Run(scenario, out)
+    code, stdout, stderr = run.finish()
+    _, poses, _ = read_trajectory(out / "trajectory.jsonl")
+    spread_m = max_pairwise_of(poses)  # computed here, not by the code under test
+    assert spread_m[0] > 0.8 and spread_m[-1] <= 0.8, spread_m  # it converged during the run
+    assert len(poses) < 0.5 * round(20.0 / 0.05)  # and ended early
+    outcome = json.loads((out / "metrics.json").read_text())
+    assert outcome["converged"] is True and outcome["incomplete"], outcome
+    assert code == 1, (stdout, stderr)
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("swarm run: run incomplete: "), stderr
+    assert "kill_server" in lines[0]
+    assert "  PARTIAL: " in stdout and "  converged: max_pairwise <= 0.8 m" in stdout, stdout
+    assert run.survivors() == []

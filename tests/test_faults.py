@@ -514,6 +514,7 @@ def edges_keeping_connected(adjacency: np.ndarray, how_many: int) -> list[list[i
     return chosen
 
 
+@pytest.mark.runtime
 @pytest.mark.parametrize(
     ("controller", "topology"),
     [
@@ -576,6 +577,7 @@ def lossy_cycle(tmp_path_factory):
     return load_scenario(path), outs
 
 
+@pytest.mark.runtime
 def test_lockstep_runs_with_packet_loss_are_reproducible(lossy_cycle):
     _, (first, second) = lossy_cycle
     assert (first / "trajectory.jsonl").read_text() == (second / "trajectory.jsonl").read_text()
@@ -583,6 +585,7 @@ def test_lockstep_runs_with_packet_loss_are_reproducible(lossy_cycle):
         assert json.loads((out / "server_stats.json").read_text())["ticks_missed"] == 0
 
 
+@pytest.mark.runtime
 def test_every_command_is_what_the_kinematic_engine_computes_under_the_same_faults(lossy_cycle):
     """The agents apply the schedule at their transport layer exactly as the kinematic engine does:
     replaying the logged poses through it gives every command the agents sent, tick by tick."""
@@ -628,6 +631,7 @@ kinematic unicycle's instant change of speed. The same kinematic run blind to th
 away, so the check still tells whether both engines apply the faults."""
 
 
+@pytest.mark.runtime
 def test_both_engines_agree_on_a_fault_scenario_until_contact(lossy_cycle):
     scenario, (out, _) = lossy_cycle
     _, physical, _ = read_trajectory(out / "trajectory.jsonl")
@@ -653,6 +657,7 @@ def test_both_engines_agree_on_a_fault_scenario_until_contact(lossy_cycle):
     assert errors_m[1] > 3 * FAULTY_POSITION_TOLERANCE_M, errors_m
 
 
+@pytest.mark.runtime
 def test_a_drop_that_splits_the_graph_gives_per_component_consensus_and_a_restore_global(tmp_path):
     split = fault_scenario(tmp_path, "disconnect", faults=[{"at": 1.0, "kind": "drop_link", "link": [2, 3]}])
     data = yaml.safe_load(split.read_text())
@@ -677,6 +682,7 @@ def test_a_drop_that_splits_the_graph_gives_per_component_consensus_and_a_restor
     assert metrics["faults"]["links_down_at_end"] == []
 
 
+@pytest.mark.runtime
 def test_an_agent_that_hears_nobody_holds_still(tmp_path):
     """Robot 0 of a GNN cycle stops hearing its two neighbours from the start (they still hear it):
     its wheels stay at zero all run, and the others gather around it."""

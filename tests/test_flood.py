@@ -140,6 +140,7 @@ def test_per_robot_form_equals_batched_kernel(tmp_path):
     np.testing.assert_allclose(messages, sim.inbox, rtol=0, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_batched_kernel_over_blocks_threads_and_targets_taken_from_neighbours(tmp_path, monkeypatch):
     """The compiled forward runs robots in blocks of ``flood_kernel.BLOCK`` (140 robots: a full block and
     a partial one), on threads or not, and takes the target a neighbour sent with the very memory a
@@ -337,6 +338,7 @@ def test_policy_runs_without_torch_or_numba(tmp_path):
     assert result.stdout.strip() == "ok"
 
 
+@pytest.mark.slow
 def test_checkpoint_round_trip_and_old_files_still_load(tmp_path):
     model = _random_model(13)
     torch.save({"model": model.state_dict(), "model_config": model.config()}, tmp_path / "c.pt")

@@ -9,11 +9,14 @@ its neighbours' messages of the last tick).
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 from test_runtime import Run, agent_records, assert_commands_equal_batched_policy, scenario_file
 
 from swarm.core.robot import RobotParams
 from swarm.learn.models.flood import FloodGNN
+
+pytestmark = pytest.mark.runtime  # real processes: the fast tier leaves it out
 
 
 def test_flood_gnn_agents_are_torch_free_and_compute_the_batched_forward(tmp_path):

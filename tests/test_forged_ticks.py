@@ -16,8 +16,11 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import swarm_run
 import yaml
+
+pytestmark = pytest.mark.runtime  # real processes: the fast tier leaves it out
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 OUTSIDE = PROJECT_ROOT / "tests" / "outside.py"

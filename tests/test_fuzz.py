@@ -31,6 +31,7 @@ import time
 from pathlib import Path
 
 import msgpack
+import pytest
 import yaml
 
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
@@ -38,6 +39,8 @@ sys.path.insert(0, str(PROJECT_ROOT / "tests"))
 
 import outside  # noqa: E402 (no project code: the key space and payloads as documented)
 import swarm_run  # noqa: E402
+
+pytestmark = pytest.mark.runtime  # real processes: the fast tier leaves it out
 
 TARGET_SAMPLES = 10_000
 OLD_TICKS = range(0, 6)

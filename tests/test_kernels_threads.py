@@ -26,6 +26,8 @@ from swarm.sim import kernels
 from swarm.sim.controller_kinds import ControllerArgs, batched_controller
 from swarm.sim.kinematic import KinematicSim
 
+pytestmark = pytest.mark.slow  # compiles every kernel's serial and parallel variants
+
 SCRIPT = """
 import json, numba, numpy as np
 from swarm.sim.kernels import jit_serial_and_parallel

@@ -270,6 +270,7 @@ def test_mec_controllers_gather_near_the_lower_bound(topology, controller):
     assert row["median_ratio_to_lower_bound"] < 1.08
 
 
+@pytest.mark.slow
 def test_flood_gathers_under_half_the_messages_lost():
     config = SweepConfig(seeds=1000, first_starts=60, packet_loss=0.5)
     from swarm.scenarios.sweep import run_cell, summarize_cell

@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 from test_runtime import Run, agent_records, scenario_file
 
 from swarm.core.robot import controlled_point, point_velocity_to_wheels
@@ -18,6 +19,8 @@ from swarm.scenarios.results import read_trajectory
 from swarm.scenarios.scenario import load_scenario
 from swarm.sim.controllers import CentralizedMec, MecFlood
 from swarm.sim.links import Links
+
+pytestmark = pytest.mark.runtime  # real processes: the fast tier leaves it out
 
 
 def logged(out):

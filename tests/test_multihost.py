@@ -26,6 +26,8 @@ from swarm.runtime.netns import Hosts, NamespaceError, Processes, why_no_namespa
 from swarm.scenarios.results import read_trajectory, summarize
 from swarm.scenarios.scenario import load_scenario
 
+pytestmark = pytest.mark.runtime  # real processes: the fast tier leaves it out
+
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 SIM_ADDRESS = "192.0.2.1"  # swarm.runtime.netns.Hosts: the first host
 PORT = 7447

@@ -4,14 +4,13 @@ the batched torch swarm against KinematicSim, the speed limit and decentralized 
 from __future__ import annotations
 
 import csv
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
+from swarm.cli import main
 from swarm.core import graphs
 from swarm.core.initial_poses import box_for, random_poses
 from swarm.core.robot import RobotParams, local_point_velocity_to_wheels
@@ -52,6 +51,7 @@ def two_runs(tmp_path_factory) -> tuple[Path, Path]:
     return first, second
 
 
+@pytest.mark.slow
 def test_short_training_runs_end_to_end(two_runs):
     first, _ = two_runs
     out = first.parent
@@ -71,6 +71,7 @@ def test_short_training_runs_end_to_end(two_runs):
     assert set(trained) == set(start)
 
 
+@pytest.mark.slow
 def test_same_seed_same_training(two_runs):
     first, second = two_runs
     log_a = read_csv(first.parent / "log.csv")
@@ -86,6 +87,7 @@ def test_same_seed_same_training(two_runs):
         np.testing.assert_array_equal(value, policy_arrays(second)[name])
 
 
+@pytest.mark.slow
 def test_exported_policy_equals_torch_mean_action(two_runs):
     """``swarm.sim.policy`` (numpy) runs the PPO export exactly as the torch actor's deterministic action."""
     first, _ = two_runs
@@ -174,33 +176,17 @@ def test_decentralized_execution_k_hop_timing():
     assert any(not np.allclose(a[0], a[1]) for a in actions[9:]), "robot 0 never heard of robot 9"
 
 
-def test_bad_config_is_one_line_error(tmp_path):
+def test_bad_config_is_one_line_error(tmp_path, capsys):
     with pytest.raises(ValueError, match="graphs: unknown graph kind 'ring'"):
         ppo.make_config("tiny", {"graphs": {"ring": 1.0}})
     with pytest.raises(ValueError, match="unknown ppo option 'learning_rate'"):
         ppo.make_config("tiny", {"learning_rate": 1.0})
     config = tmp_path / "bad.yaml"
     config.write_text("sizes: [1, 5]\n")
-    result = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "swarm.cli",
-            "train",
-            "--algo",
-            "ppo",
-            "--preset",
-            "tiny",
-            "--config",
-            str(config),
-        ],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-    )
-    assert result.returncode == 2
-    assert "sizes" in result.stderr and "Traceback" not in result.stderr
-    assert len(result.stderr.strip().splitlines()) == 1
+    # in-process: swarm.cli.main, what the console script calls
+    assert main(["train", "--algo", "ppo", "--preset", "tiny", "--config", str(config)]) == 2
+    stderr = capsys.readouterr().err
+    assert "sizes" in stderr and len(stderr.strip().splitlines()) == 1, stderr
 
 
 def test_stop_after_exports_the_last_iterate(tmp_path):

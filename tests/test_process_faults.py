@@ -68,6 +68,7 @@ def report(out) -> subprocess.CompletedProcess:
     )
 
 
+@pytest.mark.runtime
 def test_killed_hung_and_restarted_agents(tmp_path):
     """One run, eight robots on a cycle: robot 3's agent killed for good, robot 6's frozen for 3 s of
     sim time, robot 0's killed and replaced by a fresh process. The live robots still gather."""
@@ -184,6 +185,7 @@ def test_killed_hung_and_restarted_agents(tmp_path):
     ]
 
 
+@pytest.mark.runtime
 def test_kill_server_fault_ends_the_run_and_the_agents_exit_cleanly(tmp_path):
     path, scenario = fault_scenario(tmp_path, "kill-server", duration=30.0)
     out = tmp_path / "out"
@@ -209,6 +211,7 @@ def test_kill_server_fault_ends_the_run_and_the_agents_exit_cleanly(tmp_path):
     assert report(out).returncode == 1  # reads back, still incomplete
 
 
+@pytest.mark.runtime
 @pytest.mark.parametrize("victim", ["runner", "server", "agent"])
 def test_a_process_killed_at_a_random_moment_leaves_a_readable_results_directory(tmp_path, victim):
     rng = np.random.default_rng({"runner": 11, "server": 12, "agent": 13}[victim])

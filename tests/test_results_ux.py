@@ -23,6 +23,7 @@ import swarm_run
 import yaml
 from test_runtime import max_pairwise_of
 
+from swarm.cli import main
 from swarm.core import metrics
 from swarm.runtime.procs import free_tcp_port
 from swarm.scenarios.results import read_trajectory
@@ -55,26 +56,26 @@ def short_scenario(tmp_path: Path, source: Path, name: str = "s.yaml", **sim: ob
 # ----------------------------------------------------------------------------- results directories
 
 
-def test_out_into_a_non_empty_directory_is_refused_unless_force_clears_it(tmp_path):
+def test_out_into_a_non_empty_directory_is_refused_unless_force_clears_it(tmp_path, capsys):
+    # in-process (swarm.cli.main): kinematic runs, and the one line of the refusal
     scenario = short_scenario(tmp_path, THESIS / "cycle-local_consensus.yaml")
     out = tmp_path / "out"
-    first = swarm("run", str(scenario), "--out", str(out), "--quiet")
-    assert first.returncode in (0, 1), first.stderr
+    assert main(["run", str(scenario), "--out", str(out), "--quiet"]) in (0, 1)
     (out / "stale.txt").write_text("from an earlier run")
     before = (out / "metrics.json").read_text()
+    capsys.readouterr()
 
-    refused = swarm("run", str(scenario), "--out", str(out), "--quiet")
-    assert refused.returncode == 2
-    assert refused.stderr.strip().splitlines() == [
+    assert main(["run", str(scenario), "--out", str(out), "--quiet"]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
         f"swarm run: error: --out {out}: directory is not empty (--force clears it first)"
     ]
     assert (out / "stale.txt").exists() and (out / "metrics.json").read_text() == before  # untouched
 
-    forced = swarm("run", str(scenario), "--out", str(out), "--quiet", "--force")
-    assert forced.returncode in (0, 1), forced.stderr
+    assert main(["run", str(scenario), "--out", str(out), "--quiet", "--force"]) in (0, 1)
     assert not (out / "stale.txt").exists() and (out / "metrics.json").is_file()
 
 
+@pytest.mark.slow
 def test_default_results_directories_never_collide(tmp_path):
     scenario = short_scenario(tmp_path, THESIS / "cycle-local_consensus.yaml", duration=0.5)
     for _ in range(2):
@@ -105,6 +106,7 @@ def test_a_typo_names_the_unknown_key_and_the_closest_known_one(section, expecte
     assert str(error.value).split(" (and ")[0] == f"typo.yaml: {expected}"
 
 
+@pytest.mark.slow
 def test_the_kinematic_engine_warns_about_keys_it_ignores(tmp_path):
     scenario = short_scenario(tmp_path, THESIS / "cycle-local_consensus.yaml", acl=True, watchdog_s=0.5)
     result = swarm("run", str(scenario), "--out", str(tmp_path / "out"), "--quiet")
@@ -183,6 +185,7 @@ def test_a_threshold_below_what_the_bodies_allow_is_warned_about(tmp_path, caplo
 # ----------------------------------------------------------------------------- recordings
 
 
+@pytest.mark.slow
 def test_recordings_read_back_with_every_tick(tmp_path):
     """A kinematic run with a dropped link, recorded as MCAP (read back with mcap_ros2's reader) and,
     when rerun-sdk is installed, as .rrd (read back with rerun's reader)."""
@@ -278,6 +281,7 @@ def test_recordings_read_back_with_every_tick(tmp_path):
 # ----------------------------------------------------------------------------- a sim server started by hand
 
 
+@pytest.mark.runtime
 def test_a_sim_server_started_by_hand_writes_its_results_and_says_where(tmp_path):
     """The sim server and the agents started by hand (as on several hosts, here on loopback); Ctrl-C to
     the server mid-run: it writes metrics.json and the plots from the ticks on disk, marked partial,
@@ -445,6 +449,7 @@ def test_benchmarks_write_to_out_and_leave_the_committed_results_alone(tmp_path)
     assert both.returncode != 0 and "not both" in both.stderr and committed.read_bytes() == before
 
 
+@pytest.mark.slow
 def test_an_interrupted_kinematic_run_ends_with_partial_results(tmp_path):
     scenario = short_scenario(tmp_path, THESIS / "line-local_consensus.yaml", duration=3000.0)
     out = tmp_path / "out"

@@ -225,6 +225,7 @@ def test_local_consensus_policy_reproduces_kinematic_sim():
 
 
 # --- DQN ---------------------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_tiny_dqn_training_writes_its_outputs(tmp_path):
     from swarm.cli import main
     from swarm.rl import dqn

@@ -31,6 +31,8 @@ from swarm.sim.controllers import LocalConsensus
 from swarm.sim.kinematic import KinematicSim
 from swarm.sim.links import Links
 
+pytestmark = pytest.mark.runtime  # real processes: the fast tier leaves it out
+
 PROJECT_ROOT = Path(__file__).resolve().parent.parent
 THESIS = PROJECT_ROOT / "scenarios" / "thesis"
 RUN_TIMEOUT_S = 480.0

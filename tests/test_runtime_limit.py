@@ -17,6 +17,8 @@ import yaml
 
 from swarm.scenarios.results import read_trajectory
 
+pytestmark = pytest.mark.runtime  # real processes: the fast tier leaves it out
+
 
 @pytest.mark.parametrize("role", ["stand-in", "answer"])
 def test_stand_in_agents_drive_a_real_lockstep_run_to_the_end(tmp_path: Path, role: str) -> None:

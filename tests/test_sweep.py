@@ -80,6 +80,7 @@ def test_connecting_radius_connects_every_start():
     assert not all(graphs.is_connected(graphs.disk(start, radius * 0.98)) for start in positions)
 
 
+@pytest.mark.slow
 def test_sweep_command_writes_tables_and_plots(tmp_path):
     out = tmp_path / "sweep"
     code = main(

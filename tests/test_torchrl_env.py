@@ -73,6 +73,7 @@ def test_collector_runs_a_few_batches():
         assert torch.count_nonzero(data.get(("next", "agents", "observation"))) > 0
 
 
+@pytest.mark.slow
 def test_shaped_return_is_minus_time_plus_the_start_potential():
     """gamma = 1: the shaping telescopes, so an episode's return is -T + D0 / (2 v_max), with D0 the
     start's diameter (numpy, from the poses the episode started from); auto partial resets start
@@ -180,6 +181,7 @@ def test_torchrl_gae_and_loss_equal_the_loop_equations():
         assert torch.allclose(mine, theirs, rtol=5e-3, atol=1e-7)
 
 
+@pytest.mark.slow
 def test_bench_training_runs_end_to_end(tmp_path):
     """bench/ppo_torchrl.py train: TorchRL's collector, GAE and ClipPPOLoss for two updates."""
     config = tmp_path / "tiny.yaml"
@@ -206,6 +208,7 @@ def test_bench_training_runs_end_to_end(tmp_path):
     assert any(not np.allclose(trained[name], start[name]) for name in start.files if name != "__metadata__")
 
 
+@pytest.mark.slow
 def test_bench_training_refuses_a_missing_config(tmp_path):
     result = subprocess.run(
         [sys.executable, str(ROOT / "bench" / "ppo_torchrl.py"), "train", "--config",
