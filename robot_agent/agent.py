@@ -82,13 +82,14 @@ INBOX_TICKS = 8
 """Messages kept per neighbour (by tick), at least: a fast neighbour's tick-k message must not hide
 its k-1 (more under a delay fault or a longer message age)."""
 
-POSE_RING = 1024
+POSE_RING = 8192
 """Poses buffered by the pose inlet; the newest is used, older ones count as skipped (a full ring
 pushes out its oldest: ``Inlet.ring_full``). Large enough that a flood of forged samples on the
 key (rejected by their tag at ~1 us each) cannot push the genuine one out between two drains: at
-12,000 samples/s a ring of 1024 holds 85 ms of it (docs/distributed-runtime.md, "Floods")."""
+12,000 samples/s a ring of 8192 holds 0.68 s of it, more than a neighbour deadline (an empty ring
+costs nothing; a full one ~4 MiB: docs/distributed-runtime.md, "The run key")."""
 
-MESSAGE_RING = 1024
+MESSAGE_RING = 8192
 """Samples buffered per neighbour inlet (a ring: a slow agent drops, never stalls its session);
 drained every tick and while waiting, sized for floods as ``POSE_RING``."""
 
@@ -492,7 +493,7 @@ class RobotAgent:
         deadline_s = self._started_s + self.options.startup_timeout_s
         while not self._stop and time.perf_counter() < deadline_s:
             runs, errors = set(), []
-            for reply in session.get(key, timeout=1.0):
+            for reply in session.get(key, **wire.config_query_options()):
                 if reply.ok is not None:
                     run = wire.Keys.run_of_config(str(reply.ok.key_expr))
                     if run is not None and self._config_genuine(reply.ok):
@@ -506,7 +507,7 @@ class RobotAgent:
                     f"several runs serve robot {self.robot}: {sorted(runs)}; give --run"
                 )
                 return None
-            if errors:
+            if errors and self._run_key is None:  # with the key: anyone may answer an error, go on asking
                 self.record["config_error"] = "; ".join(errors)
                 return None
             time.sleep(0.05)  # no sim answers yet
@@ -518,22 +519,29 @@ class RobotAgent:
         self.record["queries"].append(key)
         deadline_s = self._started_s + self.options.startup_timeout_s
         while not self._stop and time.perf_counter() < deadline_s:
-            for reply in session.get(key, timeout=1.0):
+            chosen = None
+            # Every reply is read (not only up to the first good one): an answerer other than the sim
+            # is then always seen and counted (config_rejected), whichever answered first.
+            for reply in session.get(key, **wire.config_query_options()):
                 if reply.ok is not None:
-                    if not self._config_genuine(reply.ok):
-                        continue  # another answerer: the sim's own reply may still come
+                    if not self._config_genuine(reply.ok) or chosen is not None:
+                        continue  # another answerer (counted), or the sim's is taken already
                     config = wire.decode_config(reply.ok.payload.to_bytes())
                     if config is not None and config.robot == self.robot and config.run == self.run_id:
-                        self.record["config_source"] = (
-                            "sim (run-key tag checked)"
-                            if self._run_key is not None
-                            else "first reply (unauthenticated: no run key)"
-                        )
-                        return config
-                    self.record["config_error"] = "invalid config reply"
+                        chosen = config
+                    else:
+                        self.record["config_error"] = "invalid config reply"
                 else:
                     self.record["config_error"] = reply.err.payload.to_bytes().decode(errors="replace")
-                    return None
+                    if self._run_key is None and chosen is None:  # with the key anyone may answer an error
+                        return None
+            if chosen is not None:
+                self.record["config_source"] = (
+                    "sim (run-key tag checked)"
+                    if self._run_key is not None
+                    else "first reply (unauthenticated: no run key)"
+                )
+                return chosen
             time.sleep(0.05)  # no queryable yet: the sim is still starting
         return None
 

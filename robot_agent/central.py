@@ -135,7 +135,7 @@ class CentralController:
 
     def _fetch_config(self, session: zenoh.Session, started_s: float) -> wire.AgentConfig | None:
         while not self._stop and time.perf_counter() - started_s < self.startup_timeout_s:
-            for reply in session.get(self.keys.config(0), timeout=1.0):
+            for reply in session.get(self.keys.config(0), **wire.config_query_options()):
                 if reply.ok is not None:
                     payload, key = reply.ok.payload.to_bytes(), self._run_key
                     if key is not None and not key.check(

@@ -601,3 +601,11 @@ def attachment_of(sample: Any) -> bytes | None:
     """A sample's (or reply's) attachment as bytes, or None."""
     attachment = sample.attachment
     return None if attachment is None else attachment.to_bytes()
+
+
+def config_query_options() -> dict[str, Any]:
+    """Keyword arguments of ``session.get`` for a configuration: every reply, unconsolidated (Zenoh's
+    default keeps one reply per key, which could be another answerer's in place of the sim's)."""
+    import zenoh
+
+    return {"consolidation": zenoh.ConsolidationMode.NONE, "timeout": 1.0}
