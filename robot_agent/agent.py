@@ -39,6 +39,13 @@ polls). In lockstep a neighbour's message
 of tick k-1 reaches the agent before its pose k (both pass the server's router in order), so the
 agent rarely waits; when it must, it polls the channels until the deadline.
 
+With a run key in its environment (``SWARM_RUN_KEY``: ``swarm.runtime.wire.RunKey``, given by ``swarm
+run``) the agent checks the tag of every pose, message and config reply before anything else (one
+without a valid tag is *unauthenticated*; it takes its configuration only from a reply with the sim's
+tag, reading every reply: ``config_source``, ``config_rejected``) and tags what it sends. In lockstep
+a neighbour whose token is up but whose message missed ``HUNG_AFTER_DEADLINES`` neighbour deadlines in
+a row is not waited for until it talks again (``neighbour_events``): a token alone cannot stall it.
+
 The agent holds the token ``swarm/<run>/alive/agent/<i>``, exits cleanly (session closed) on SIGTERM
 or SIGINT and when the sim's token ``swarm/<run>/alive/sim`` goes away (after the run's last tick at
 once, else when it stays away ``sim.server_lost_s``: a brief partition is survived), and records what it

@@ -24,6 +24,10 @@ The server also answers ``swarm/<run>/config/<i>`` queries with robot i's config
 file) and holds the liveliness token ``swarm/<run>/alive/sim``; agents exit when it goes away
 (for good: ``sim.server_lost_s``). A command that does not decode (``swarm.runtime.wire``) is dropped and
 counted as invalid, one whose tick is not newer than the last accepted from that robot as old.
+With a run key (``ServerOptions.run_key``, from ``SWARM_RUN_KEY``) it tags every pose and config
+reply and counts a command without a valid tag as unauthenticated (``swarm.runtime.wire.RunKey``). In
+lockstep an agent whose token is up but whose command missed ``HUNG_AFTER_DEADLINES`` deadlines in a
+row is *hung*: not waited for until it answers again (``hung`` and ``answering`` agent events).
 Each ``trajectory.jsonl`` line also carries ``wheels``: the (saturated) wheel speeds applied from
 that tick to the next, so the controller's timing can be checked after the run. Per-tick statistics
 (ticks served, command latency) go to ``server_stats.json``, with, per robot, the ticks without a

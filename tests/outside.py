@@ -156,10 +156,15 @@ def forge(args: argparse.Namespace) -> dict:
                         "msg": message(tick, [0.0] * args.dim),
                     }[kind]
                 forged = moved(genuine[kind], ahead)
-                session.put(key, forged)
+                session.put(key, forged, congestion_control=zenoh.CongestionControl.BLOCK)
                 sent[kind] = {"key": key, "tick": tick_of(forged), "at_tick": tick}
         time.sleep(0.001)
-    time.sleep(0.2)  # let the puts leave before the session closes
+    # A query the sim answers, asked after the last put, is answered once the router has taken every
+    # put before it (tests/test_fuzz.py): then the session may close without dropping any.
+    flush_until_s = time.monotonic() + (30 if sent else 0)
+    while time.monotonic() < flush_until_s:
+        if any(reply.ok is not None for reply in session.get(f"swarm/{run}/config/0", timeout=5.0)):
+            break
     for _, subscriber in sources.values():
         subscriber.undeclare()
     watch.undeclare()

@@ -11,6 +11,10 @@ The one place that knows what travels on the wire. Key space of one run (``<run>
     swarm/<run>/alive/agent/<i>    liveliness token of robot i's controller
     swarm/<run>/fault/...          runner -> everyone: injected faults (reserved)
 
+With a run key (``SWARM_RUN_KEY``, :class:`RunKey`) every pose, message, command and config reply
+carries in its Zenoh attachment a 16-byte tag of its key expression and payload; a receiver checks it
+before decoding and counts a sample without a valid one as *unauthenticated*.
+
 Payloads are msgpack maps carrying ``"v": SCHEMA_VERSION``. Every ``decode_*`` validates
 the schema version, types, finiteness and magnitudes (and, for a message, its length) and returns
 ``None`` for anything malformed (the caller counts it as invalid and drops it); decoding never
