@@ -163,8 +163,8 @@ def test_a_flood_pushes_no_genuine_sample_out(clean, tmp_path, kind, robot, stre
         assert _accounted(counted) == counted["taken"], (i, counted)  # every sample read is named
         if counted["ring_full"] == 0:  # nothing was pushed out: every forged one was read and rejected
             assert counted["unauthenticated"] == report["sent"], (i, counted, report)
-            senders = [robot] if stream == "messages" else []
-            genuine = sum(records[j]["commands_sent"] for j in senders) if senders else STEPS
+            senders = [(i - 1) % COUNT, (i + 1) % COUNT]  # the cycle: what i's neighbours sent
+            genuine = sum(records[j]["commands_sent"] for j in senders) if stream == "messages" else STEPS
             assert counted["received"] + counted["unread"] == genuine, (i, counted, genuine)
     if full == 0:
         _same_trajectory(clean, lines)
