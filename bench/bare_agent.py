@@ -55,7 +55,7 @@ import zenoh
 POSE_RING = 256
 """Poses buffered (robot_agent keeps 4): the lockstep sim waits for the real agents only, so a bare
 agent may fall behind; it computes every pose it got, in order, and must not lose any meanwhile."""
-MESSAGE_RING = 16  # as robot_agent.agent
+MESSAGE_RING = 8192  # as robot_agent.agent
 ANSWER_WHEELS_MPS = (-0.1, 0.1)
 """The ``answer`` role's command (left, right): every robot turns on the spot, so the bodies stay awake
 and never touch (starts are 0.4 m apart, bumpers 0.12 m)."""

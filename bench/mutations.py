@@ -80,6 +80,34 @@ MUTATIONS = [
         ("tests/test_fuzz.py",),
     ),
     Mutation(
+        "pose-tag-not-checked",
+        "the agent takes a pose without checking its run-key tag",
+        "robot_agent/agent.py",
+        """                if run_key is not None and not run_key.check(pose_key, payload, tag):""",
+        """                if False:""",
+        ("tests/test_outside_attacks.py",),
+    ),
+    Mutation(
+        "config-tag-not-checked",
+        "the agent takes any config reply, the sim's or another answerer's",
+        "robot_agent/agent.py",
+        """        if key is None:
+            return True
+        if key.check(""",
+        """        if True:
+            return True
+        if key.check(""",
+        ("tests/test_outside_attacks.py",),
+    ),
+    Mutation(
+        "server-never-finds-an-agent-hung",
+        "the lockstep server waits for every live token's command, however long it stays silent",
+        "sim_server/server.py",
+        """                if self._missed_in_row[i] >= HUNG_AFTER_DEADLINES:""",
+        """                if False:""",
+        ("tests/test_outside_attacks.py",),
+    ),
+    Mutation(
         "agent-subscribes-to-every-message",
         "an agent also subscribes to every robot's messages (agent/*/msg) but records only its neighbours",
         "robot_agent/agent.py",

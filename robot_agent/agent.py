@@ -39,6 +39,13 @@ polls). In lockstep a neighbour's message
 of tick k-1 reaches the agent before its pose k (both pass the server's router in order), so the
 agent rarely waits; when it must, it polls the channels until the deadline.
 
+With a run key in its environment (``SWARM_RUN_KEY``: ``swarm.runtime.wire.RunKey``, given by ``swarm
+run``) the agent checks the tag of every pose, message and config reply before anything else (one
+without a valid tag is *unauthenticated*; it takes its configuration only from a reply with the sim's
+tag, reading every reply: ``config_source``, ``config_rejected``) and tags what it sends. In lockstep
+a neighbour whose token is up but whose message missed ``HUNG_AFTER_DEADLINES`` neighbour deadlines in
+a row is not waited for until it talks again (``neighbour_events``): a token alone cannot stall it.
+
 The agent holds the token ``swarm/<run>/alive/agent/<i>``, exits cleanly (session closed) on SIGTERM
 or SIGINT and when the sim's token ``swarm/<run>/alive/sim`` goes away (after the run's last tick at
 once, else when it stays away ``sim.server_lost_s``: a brief partition is survived), and records what it
@@ -83,14 +90,23 @@ INBOX_TICKS = 8
 """Messages kept per neighbour (by tick), at least: a fast neighbour's tick-k message must not hide
 its k-1 (more under a delay fault or a longer message age)."""
 
-POSE_RING = 16
+POSE_RING = 8192
 """Poses buffered by the pose inlet; the newest is used, older ones count as skipped (a full ring
-pushes out its oldest: ``Inlet.ring_full``)."""
+pushes out its oldest: ``Inlet.ring_full``). Large enough that a flood of forged samples on the
+key (rejected by their tag at ~1 us each) cannot push the genuine one out between two drains: at
+12,000 samples/s a ring of 8192 holds 0.68 s of it, more than a neighbour deadline (an empty ring
+costs nothing; a full one ~4 MiB: docs/distributed-runtime.md, "The run key")."""
 
-MESSAGE_RING = 2 * INBOX_TICKS
-"""Samples buffered per neighbour inlet (a ring: a slow agent drops, never stalls its session)."""
+MESSAGE_RING = 8192
+"""Samples buffered per neighbour inlet (a ring: a slow agent drops, never stalls its session);
+drained every tick and while waiting, sized for floods as ``POSE_RING``."""
 
 LIVELINESS_RING = 16
+
+HUNG_AFTER_DEADLINES = 3
+"""lockstep: a live neighbour (its token up) whose message missed this many neighbour deadlines in a
+row is *hung*: not waited for until a message of it comes again (a token alone, a zombie's, cannot
+stall this agent). Both are events in the record (``neighbour_events``)."""
 
 POLL_S = 0.0005
 """lockstep: channel polling period while a live neighbour's message of the last tick is missing."""
@@ -123,20 +139,22 @@ class Inlet:
         self.taken = self.ring_full = self.unread = 0
         self._streak = 0  # samples taken since the ring was last found empty
 
-    def take(self) -> bytes | None:
-        """The oldest queued payload, or None (the ring is empty now)."""
+    def take(self) -> tuple[bytes, bytes | None] | None:
+        """The oldest queued ``(payload, attachment)``, or None (the ring is empty now)."""
         sample = self.subscriber.try_recv()
         if sample is None:
             self._streak = 0
             return None
         self._count()
-        return sample.payload.to_bytes()
+        attachment = sample.attachment
+        return sample.payload.to_bytes(), None if attachment is None else attachment.to_bytes()
 
-    def recv(self) -> bytes:
-        """Block for the next payload (a signal handler that raises interrupts the wait)."""
+    def recv(self) -> tuple[bytes, bytes | None]:
+        """Block for the next ``(payload, attachment)`` (a signal handler that raises interrupts the wait)."""
         sample = self.subscriber.recv()
         self._count()
-        return sample.payload.to_bytes()
+        attachment = sample.attachment
+        return sample.payload.to_bytes(), None if attachment is None else attachment.to_bytes()
 
     def _count(self) -> None:
         self.taken += 1
@@ -167,11 +185,13 @@ class AgentOptions:
 class Counters:
     poses_received: int = 0
     poses_invalid: int = 0
+    poses_unauthenticated: int = 0  # no valid run-key tag: forged (or a sender without the run key)
     poses_old: int = 0  # tick not newer than the newest pose seen: a replay or reordered
     # poses dated beyond the agent's window (swarm.runtime.ticks) are counted by its PoseWindow
     poses_skipped: int = 0
     messages_received: int = 0
     messages_invalid: int = 0
+    messages_unauthenticated: int = 0
     messages_old: int = 0  # tick not newer than the newest accepted from that neighbour
     messages_future: int = 0  # tick beyond the agent's window (swarm.runtime.ticks): forged or dated ahead
     messages_lost: int = 0
@@ -219,11 +239,16 @@ class RobotAgent:
         self._inbox: dict[int, dict[int, Sequence[float]]] = {}  # neighbour -> tick -> message
         self._msg_inlets: dict[int, Inlet] = {}
         self._pose_inlet: Inlet | None = None
+        self._pose_key = ""
+        self._msg_keys: dict[int, str] = {}
         self._window = PoseWindow(1.0)
+        self._run_key = wire.RunKey.from_env()  # None: authentication off (no SWARM_RUN_KEY)
         self._newest_message_tick: dict[int, int] = {}  # neighbour -> tick of its newest message accepted
         self._alive_subs: dict[int, zenoh.Subscriber] = {}
         self._neighbours_alive: set[int] = set()
         self._neighbours_gone: set[int] = set()  # neighbours whose token went away at least once
+        self._neighbours_hung: set[int] = set()  # live but silent (HUNG_AFTER_DEADLINES): not waited for
+        self._missed_in_row: dict[int, int] = {}  # neighbour -> neighbour deadlines missed in a row
         self._lockstep = True
         self._last_tick = -1
         self._first_tick: int | None = None  # the tick of the first pose this agent got (0 unless restarted)
@@ -249,6 +274,11 @@ class RobotAgent:
             "queries": [],
             "exit_reason": None,
             "sim_lost": 0,  # times the sim's token went away (a partition, the sim's end)
+            "neighbour_events": [],  # {"robot", "event": hung | answering, "tick"}
+            # run key: every pose, message and the config must carry its tag; off: none is checked
+            "authentication": "run key" if self._run_key is not None else "off",
+            "config_source": None,
+            "config_rejected": 0,  # config replies without a valid run-key tag (another answerer)
         }
         self._started_s = time.perf_counter()
 
@@ -299,7 +329,7 @@ class RobotAgent:
     def _ended(self) -> bool:
         return self._stop or self._sim_alive is False or self._sim_unseen
 
-    def _recv(self, inlet: Inlet) -> bytes | None:
+    def _recv(self, inlet: Inlet) -> tuple[bytes, bytes | None] | None:
         """The next payload of the pose inlet; None once stopped or the sim is gone."""
         if self._main_thread is None:  # no signals here: poll
             while not self._ended():
@@ -337,9 +367,14 @@ class RobotAgent:
     def _drain_messages(self) -> None:
         counters, newest = self.counters, self._newest_message_tick
         limit = self._window.limit(time.perf_counter())  # no neighbour is ahead of the sim (ticks.py)
+        run_key, keys = self._run_key, self._msg_keys
         for j, inlet in self._msg_inlets.items():
             box = self._inbox[j]
-            while (payload := inlet.take()) is not None:
+            while (taken := inlet.take()) is not None:
+                payload, tag = taken
+                if run_key is not None and not run_key.check(keys[j], payload, tag):
+                    counters.messages_unauthenticated += 1
+                    continue
                 decoded = wire.decode_message_values(payload, self._dim)
                 if decoded is None:
                     counters.messages_invalid += 1
@@ -353,6 +388,11 @@ class RobotAgent:
                     continue
                 newest[j] = tick
                 counters.messages_received += 1
+                if self._missed_in_row.get(j):
+                    self._missed_in_row[j] = 0
+                if j in self._neighbours_hung:  # it talks again: waited for from here on
+                    self._neighbours_hung.discard(j)
+                    self.record["neighbour_events"].append({"robot": j, "event": "answering", "tick": tick})
                 if self._lockstep and tick < self._last_tick - self._keep_ticks:
                     counters.messages_late += 1  # every tick that could use it is computed already
                     continue
@@ -367,9 +407,15 @@ class RobotAgent:
         if several are queued; one dated beyond it only once a second pose confirms it:
         swarm.runtime.ticks)."""
         counters, window, newest = self.counters, self._window, None
+        run_key, pose_key = self._run_key, self._pose_key
         while newest is None:
-            payload = self._recv(inlet)
-            while payload is not None:
+            taken = self._recv(inlet)
+            while taken is not None:
+                payload, tag = taken
+                taken = inlet.take()
+                if run_key is not None and not run_key.check(pose_key, payload, tag):
+                    counters.poses_unauthenticated += 1
+                    continue
                 pose = wire.decode_pose(payload)
                 if pose is None:
                     counters.poses_invalid += 1
@@ -382,7 +428,6 @@ class RobotAgent:
                         newest = pose
                     elif verdict == OLD:
                         counters.poses_old += 1
-                payload = inlet.take()
             if self._ended():
                 return None
         return newest
@@ -391,16 +436,26 @@ class RobotAgent:
         """lockstep: whether a live neighbour's message that ``tick`` needs (that of tick k-1-delay)
         may still come: not from before this agent's first tick or the neighbour's return, not one the
         link faults drop anyway."""
+        return bool(self._missing(tick, first_only=True))
+
+    def _missing(self, tick: int, first_only: bool = False) -> list[int]:
+        """The live, not hung neighbours whose message that ``tick`` needs may still come (see
+        :meth:`_waiting_for`); only the first found with ``first_only``."""
         faults, me, first_tick = self._faults, self.robot, self._first_tick
         assert first_tick is not None  # called once a pose came
+        hung, missing = self._neighbours_hung, []
         for j in self._neighbours_alive:
             needed = tick - 1 if faults.empty else tick - 1 - faults.delay_ticks(j, me, tick)
             joined = self._joined.get(j, 0)
             if joined is None or needed < first_tick or needed < joined or needed in self._inbox[j]:
                 continue
+            if j in hung:
+                continue
             if faults.empty or faults.heard(j, me, needed):
-                return True
-        return False
+                missing.append(j)
+                if first_only:
+                    break
+        return missing
 
     def _wait_for_messages(self, tick: int, until_s: float) -> None:
         """lockstep: poll until every live neighbour's needed message is in, or the deadline."""
@@ -409,7 +464,15 @@ class RobotAgent:
             self._drain_messages()
             if not self._waiting_for(tick):
                 return
-            if time.perf_counter() >= until_s or self._ended():
+            if self._ended():
+                return
+            if time.perf_counter() >= until_s:
+                for j in self._missing(tick):  # missed the deadline: hung after a few in a row
+                    self._missed_in_row[j] = self._missed_in_row.get(j, 0) + 1
+                    if self._missed_in_row[j] >= HUNG_AFTER_DEADLINES:
+                        self._neighbours_hung.add(j)
+                        self._missed_in_row[j] = 0
+                        self.record["neighbour_events"].append({"robot": j, "event": "hung", "tick": tick})
                 return
             time.sleep(POLL_S)
 
@@ -438,10 +501,10 @@ class RobotAgent:
         deadline_s = self._started_s + self.options.startup_timeout_s
         while not self._stop and time.perf_counter() < deadline_s:
             runs, errors = set(), []
-            for reply in session.get(key, timeout=1.0):
+            for reply in session.get(key, **wire.config_query_options()):
                 if reply.ok is not None:
                     run = wire.Keys.run_of_config(str(reply.ok.key_expr))
-                    if run is not None:
+                    if run is not None and self._config_genuine(reply.ok):
                         runs.add(run)
                 else:
                     errors.append(reply.err.payload.to_bytes().decode(errors="replace"))
@@ -452,7 +515,7 @@ class RobotAgent:
                     f"several runs serve robot {self.robot}: {sorted(runs)}; give --run"
                 )
                 return None
-            if errors:
+            if errors and self._run_key is None:  # with the key: anyone may answer an error, go on asking
                 self.record["config_error"] = "; ".join(errors)
                 return None
             time.sleep(0.05)  # no sim answers yet
@@ -464,17 +527,42 @@ class RobotAgent:
         self.record["queries"].append(key)
         deadline_s = self._started_s + self.options.startup_timeout_s
         while not self._stop and time.perf_counter() < deadline_s:
-            for reply in session.get(key, timeout=1.0):
+            chosen = None
+            # Every reply is read (not only up to the first good one): an answerer other than the sim
+            # is then always seen and counted (config_rejected), whichever answered first.
+            for reply in session.get(key, **wire.config_query_options()):
                 if reply.ok is not None:
+                    if not self._config_genuine(reply.ok) or chosen is not None:
+                        continue  # another answerer (counted), or the sim's is taken already
                     config = wire.decode_config(reply.ok.payload.to_bytes())
                     if config is not None and config.robot == self.robot and config.run == self.run_id:
-                        return config
-                    self.record["config_error"] = "invalid config reply"
+                        chosen = config
+                    else:
+                        self.record["config_error"] = "invalid config reply"
                 else:
                     self.record["config_error"] = reply.err.payload.to_bytes().decode(errors="replace")
-                    return None
+                    if self._run_key is None and chosen is None:  # with the key anyone may answer an error
+                        return None
+            if chosen is not None:
+                self.record["config_source"] = (
+                    "sim (run-key tag checked)"
+                    if self._run_key is not None
+                    else "first reply (unauthenticated: no run key)"
+                )
+                return chosen
             time.sleep(0.05)  # no queryable yet: the sim is still starting
         return None
+
+    def _config_genuine(self, sample: zenoh.Sample) -> bool:
+        """Whether a config reply carries the run key's tag (always, with authentication off);
+        counts the others in ``config_rejected``."""
+        key = self._run_key
+        if key is None:
+            return True
+        if key.check(str(sample.key_expr), sample.payload.to_bytes(), wire.attachment_of(sample)):
+            return True
+        self.record["config_rejected"] += 1
+        return False
 
     def run(self) -> int:
         """Run the agent until the sim goes away or a stop request. From the main thread, it
@@ -551,6 +639,8 @@ class RobotAgent:
         ring = zenoh.handlers.RingChannel
         entities: list[Any] = [sim_sub]
         pose_inlet = self._pose_inlet = Inlet(session, keys.pose(self.robot), POSE_RING)
+        self._pose_key = keys.pose(self.robot)
+        self._msg_keys = {j: keys.msg(j) for j in config.neighbours}
         entities.append(pose_inlet)  # undeclared last: it counts what is unread first
         record["subscriptions"].append(keys.pose(self.robot))
         for j in config.neighbours:
@@ -597,6 +687,9 @@ class RobotAgent:
         faults, me, max_age = self._faults, self.robot, self._max_age
         no_faults = faults.empty
         boxes = [(j, self._inbox[j]) for j in neighbours]  # each neighbour's inbox, kept for the run
+        run_key = self._run_key
+        assert self.keys is not None
+        msg_key, cmd_key = self.keys.msg(me), self.keys.cmd(me)
         while True:
             pose = self._next_pose(pose_inlet)
             if pose is None:
@@ -647,8 +740,14 @@ class RobotAgent:
                 inbox = np.array(messages, dtype=np.float64).reshape(len(heard), dim)
                 u_world, message = controller.act_one(pose.array(), inbox, np.array(weights))
             wheels = wheels_one(u_world, pose.theta_rad, params)
-            msg_pub.put(wire.encode_message(tick, message))
-            cmd_pub.put(wire.encode_command(tick, wheels))
+            message_payload = wire.encode_message(tick, message)
+            command_payload = wire.encode_command(tick, wheels)
+            if run_key is None:
+                msg_pub.put(message_payload)
+                cmd_pub.put(command_payload)
+            else:
+                msg_pub.put(message_payload, attachment=run_key.tag(msg_key, message_payload))
+                cmd_pub.put(command_payload, attachment=run_key.tag(cmd_key, command_payload))
             counters.compute_s.append(time.perf_counter() - compute_start_s)
             counters.ticks += 1
             counters.commands_sent += 1
@@ -663,18 +762,23 @@ class RobotAgent:
             poses={
                 "received": counters.poses_received + window.confirmed,
                 "invalid": counters.poses_invalid,
+                "unauthenticated": counters.poses_unauthenticated,
                 "old": counters.poses_old,
                 "future": window.future + (window.candidate is not None),  # a pending candidate too
+                "taken": pose_inlet.taken if pose_inlet is not None else 0,  # every sample read
                 "ring_full": pose_inlet.ring_full if pose_inlet is not None else 0,
                 "unread": pose_inlet.unread if pose_inlet is not None else 0,  # came after the last tick
                 "skipped": counters.poses_skipped + window.confirmed,
                 "jumps": window.confirmed,  # beyond the window, confirmed by the next pose: followed
+                "recovered": window.recovered,  # old poses taken as the clock again (swarm.runtime.ticks)
             },
             messages={
                 "received": counters.messages_received,
                 "invalid": counters.messages_invalid,
+                "unauthenticated": counters.messages_unauthenticated,
                 "old": counters.messages_old,
                 "future": counters.messages_future,
+                "taken": sum(inlet.taken for inlet in self._msg_inlets.values()),
                 "ring_full": sum(inlet.ring_full for inlet in self._msg_inlets.values()),
                 "unread": sum(inlet.unread for inlet in self._msg_inlets.values()),
                 "lost": counters.messages_lost,

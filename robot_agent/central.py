@@ -51,6 +51,7 @@ class CentralController:
         self._last_tick = -1  # the newest tick computed
         self._last_tick_at_s = 0.0  # when it was taken
         self._step_s = 1.0  # swarm.runtime.ticks eq. (1), from the config once fetched
+        self._run_key = wire.RunKey.from_env()  # None: authentication off (no SWARM_RUN_KEY)
         self.record: dict = {
             "role": "centralized",
             "pid": os.getpid(),
@@ -61,7 +62,10 @@ class CentralController:
             "publications": [],
             "liveliness_tokens": [],
             "ticks": 0,
+            "authentication": "run key" if self._run_key is not None else "off",
             "poses_invalid": 0,
+            "poses_unauthenticated": 0,  # no valid run-key tag: forged
+            "config_rejected": 0,
             "poses_old": 0,
             "poses_future": 0,  # beyond its own clock (swarm.runtime.ticks): forged or ahead
             "callback_errors": 0,
@@ -78,8 +82,15 @@ class CentralController:
             self._cond.notify_all()
 
     def _on_pose(self, sample: zenoh.Sample) -> None:
-        robot = self.keys.robot_of(str(sample.key_expr), "pose")
-        pose = wire.decode_pose(sample.payload.to_bytes())
+        key_expr = str(sample.key_expr)
+        robot = self.keys.robot_of(key_expr, "pose")
+        payload = sample.payload.to_bytes()
+        run_key = self._run_key
+        if run_key is not None and not run_key.check(key_expr, payload, wire.attachment_of(sample)):
+            with self._cond:
+                self.record["poses_unauthenticated"] += 1
+            return
+        pose = wire.decode_pose(payload)
         with self._cond:
             if pose is None or robot is None:
                 self.record["poses_invalid"] += 1
@@ -125,9 +136,15 @@ class CentralController:
 
     def _fetch_config(self, session: zenoh.Session, started_s: float) -> wire.AgentConfig | None:
         while not self._stop and time.perf_counter() - started_s < self.startup_timeout_s:
-            for reply in session.get(self.keys.config(0), timeout=1.0):
+            for reply in session.get(self.keys.config(0), **wire.config_query_options()):
                 if reply.ok is not None:
-                    return wire.decode_config(reply.ok.payload.to_bytes())
+                    payload, key = reply.ok.payload.to_bytes(), self._run_key
+                    if key is not None and not key.check(
+                        str(reply.ok.key_expr), payload, wire.attachment_of(reply.ok)
+                    ):
+                        self.record["config_rejected"] += 1  # another answerer than the sim
+                        continue
+                    return wire.decode_config(payload)
             time.sleep(0.05)
         return None
 
@@ -191,7 +208,11 @@ class CentralController:
                     u_world = complete_consensus_velocity(controlled_point(poses, params.offset_m), gain)
                 wheels = point_velocity_to_wheels(u_world, poses[:, 2], params)
                 for row, i in enumerate(robots):
-                    publishers[i].put(wire.encode_command(tick, wheels[row]))
+                    payload = wire.encode_command(tick, wheels[row])
+                    if self._run_key is None:
+                        publishers[i].put(payload)
+                    else:
+                        publishers[i].put(payload, attachment=self._run_key.tag(keys.cmd(i), payload))
                 record["ticks"] += 1
         finally:
             for entity in reversed(entities):

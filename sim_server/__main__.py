@@ -15,6 +15,7 @@ neighbourhood of the graph (``swarm.runtime.acl``).
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 from pathlib import Path
 
@@ -118,6 +119,13 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError(f"--users is for scenarios with sim.acl: true, and {args.scenario} has not")
         if args.admin_space:
             settings = {**settings, **ADMIN_SPACE}
+        run_key = wire.RunKey.from_env()  # ValueError (bad input) when SWARM_RUN_KEY is not a key
+        if run_key is None:
+            logging.getLogger("sim_server").warning(
+                "sim_server: %s is not set: poses, configs and commands are not authenticated "
+                "(anyone who can reach the router can forge them; docs/distributed-runtime.md)",
+                wire.RUN_KEY_ENV,
+            )
         options = ServerOptions(
             run=args.run,
             out_dir=Path(args.out),
@@ -129,6 +137,7 @@ def main(argv: list[str] | None = None) -> int:
             policy=policy,
             quiet=args.quiet,
             zenoh_settings=settings,
+            run_key=run_key,
         )
         # endpoints and settings of the right form, before anything starts (serve() opens the session)
         wire.session_config(options.zenoh_mode, options.connect, options.listen, args.lease_ms, settings)

@@ -24,6 +24,10 @@ The server also answers ``swarm/<run>/config/<i>`` queries with robot i's config
 file) and holds the liveliness token ``swarm/<run>/alive/sim``; agents exit when it goes away
 (for good: ``sim.server_lost_s``). A command that does not decode (``swarm.runtime.wire``) is dropped and
 counted as invalid, one whose tick is not newer than the last accepted from that robot as old.
+With a run key (``ServerOptions.run_key``, from ``SWARM_RUN_KEY``) it tags every pose and config
+reply and counts a command without a valid tag as unauthenticated (``swarm.runtime.wire.RunKey``). In
+lockstep an agent whose token is up but whose command missed ``HUNG_AFTER_DEADLINES`` deadlines in a
+row is *hung*: not waited for until it answers again (``hung`` and ``answering`` agent events).
 Each ``trajectory.jsonl`` line also carries ``wheels``: the (saturated) wheel speeds applied from
 that tick to the next, so the controller's timing can be checked after the run. Per-tick statistics
 (ticks served, command latency) go to ``server_stats.json``, with, per robot, the ticks without a
@@ -68,6 +72,12 @@ TRAJECTORY_FLUSH_S = 0.1
 """Trajectory lines are batched and written at most this long after the oldest (every tick when the
 scenario has process faults: the runner follows the server's progress in the file to time them)."""
 
+HUNG_AFTER_DEADLINES = 3
+"""lockstep: an agent whose token is up but whose command missed this many deadlines in a row is
+*hung*: the server stops waiting for it (its robot keeps its last command for ``sim.watchdog_s``,
+then stops) until a command of it comes again; both are agent events (``hung``, ``answering``) in
+``server_stats.json``."""
+
 STATS_EVERY_S = 1.0
 """While the run goes on, ``server_stats.json`` is rewritten (atomically) at the first tick and then
 at most this often, so a killed server still leaves its counters of a moment ago."""
@@ -85,6 +95,7 @@ class ServerOptions:
     policy: bytes | None = None
     quiet: bool = False
     zenoh_settings: dict = field(default_factory=dict)  # more session settings (swarm.runtime.acl)
+    run_key: wire.RunKey | None = None  # tags poses and configs, checks commands (None: off)
 
 
 def agent_configs(scenario: Scenario, run: str, policy: bytes | None) -> list[wire.AgentConfig]:
@@ -164,6 +175,13 @@ class SimServer:
         self.count = scenario.robots.count
         self.dt_s = scenario.sim.control_period_s
         self._configs = [wire.encode_config(c) for c in agent_configs(scenario, options.run, options.policy)]
+        key = options.run_key
+        self._config_tags = (
+            None if key is None else [key.tag(self.keys.config(i), c) for i, c in enumerate(self._configs)]
+        )
+        self._pose_keys = [self.keys.pose(i) for i in range(self.count)]
+        self._hung: set[int] = set()  # lockstep: live agents not waited for (HUNG_AFTER_DEADLINES)
+        self._missed_in_row = np.zeros(self.count, dtype=int)
         self._robot_of_cmd = {self.keys.cmd(i): i for i in range(self.count)}
         self._cond = threading.Condition()
         self._stop = False
@@ -182,7 +200,9 @@ class SimServer:
         self._newest_cmd_tick: dict[int, int] = {}  # robot -> tick of the newest command accepted
         self._stats_written_s = -math.inf  # written at the first tick: a server killed early leaves it too
         self.stats: dict[str, Any] = {
+            "authentication": "run key" if key is not None else "off",
             "invalid_commands": 0,
+            "unauthenticated_commands": 0,
             "late_commands": 0,
             "future_commands": 0,
             "old_commands": 0,
@@ -194,12 +214,22 @@ class SimServer:
     # ------------------------------------------------------------------ callbacks (zenoh threads)
     def _on_cmd(self, sample: zenoh.Sample) -> None:
         now_s = time.perf_counter()
-        robot = self._robot_of_cmd.get(str(sample.key_expr))
-        cmd = wire.decode_command(sample.payload.to_bytes())
+        key_expr = str(sample.key_expr)
+        robot = self._robot_of_cmd.get(key_expr)
+        payload = sample.payload.to_bytes()
+        run_key = self.options.run_key
+        if run_key is not None and not run_key.check(key_expr, payload, wire.attachment_of(sample)):
+            with self._cond:
+                self.stats["unauthenticated_commands"] += 1
+            return
+        cmd = wire.decode_command(payload)
         with self._cond:
             if cmd is None or robot is None:
                 self.stats["invalid_commands"] += 1
                 return
+            if robot in self._hung:  # it answers again: waited for from the next tick on
+                self._hung.discard(robot)
+                self._event(robot, "answering")
             lockstep = self.scenario.sim.mode == "lockstep"
             if cmd.tick > self._tick:
                 self.stats["future_commands"] += 1
@@ -234,17 +264,22 @@ class SimServer:
             else:
                 self._alive.discard(robot)
                 self._expected.discard(robot)
+                self._hung.discard(robot)
                 event = "gone"
-            self.stats["agent_events"].append(
-                {
-                    "robot": robot,
-                    "event": event,
-                    "tick": self._tick,
-                    "time_s": round(max(self._tick, 0) * self.dt_s, 9),
-                    "wall_s": round(time.perf_counter() - self._started_s, 4),
-                }
-            )
+            self._event(robot, event)
             self._cond.notify_all()
+
+    def _event(self, robot: int, event: str) -> None:
+        """An agent event (lock held): alive, gone, back, hung, answering."""
+        self.stats["agent_events"].append(
+            {
+                "robot": robot,
+                "event": event,
+                "tick": self._tick,
+                "time_s": round(max(self._tick, 0) * self.dt_s, 9),
+                "wall_s": round(time.perf_counter() - self._started_s, 4),
+            }
+        )
 
     def _on_query(self, query: zenoh.Query) -> None:
         key = str(query.key_expr)
@@ -259,7 +294,10 @@ class SimServer:
         if robot is None or robot >= self.count:
             query.reply_err(f"no robot {robot} in this run of {self.count} robots".encode())
             return
-        query.reply(self.keys.config(robot), self._configs[robot])
+        if self._config_tags is None:
+            query.reply(self.keys.config(robot), self._configs[robot])
+        else:
+            query.reply(self.keys.config(robot), self._configs[robot], attachment=self._config_tags[robot])
 
     # ------------------------------------------------------------------ main thread
     def request_stop(self, *_: object) -> None:
@@ -336,15 +374,19 @@ class SimServer:
         time_s = tick * self.dt_s
         with self._cond:
             self._tick = tick
-            self._expected = set(self._alive)
+            self._expected = self._alive - self._hung
             self._fresh.clear()
             if self.scenario.sim.mode == "lockstep":
                 self._cmds.clear()
             self._published_at_s[tick] = time.perf_counter()
-        for publisher, payload in zip(
-            publishers, self._encoder.encode(tick, time_s, poses.tolist()), strict=True
-        ):
-            publisher.put(payload)
+        payloads = self._encoder.encode(tick, time_s, poses.tolist())
+        run_key = self.options.run_key
+        if run_key is None:
+            for publisher, payload in zip(publishers, payloads, strict=True):
+                publisher.put(payload)
+        else:
+            for publisher, key, payload in zip(publishers, self._pose_keys, payloads, strict=True):
+                publisher.put(payload, attachment=run_key.tag(key, payload))
         self._add_time("publish", start_s, start_cpu_s)
 
     def _add_time(self, part: str, start_s: float, start_cpu_s: float) -> None:
@@ -411,6 +453,7 @@ class SimServer:
                         wheels[i] = 0.0
                     if i in alive and i not in cmds:
                         missed_by_robot[i] += 1
+                self._count_hung(cmds, alive)
                 self._count_robot_ticks(cmds, alive)
                 del self._published_at_s[tick]
                 step_wall_s, step_cpu_s = self._apply_and_step(world, trajectory, tick, poses, wheels)
@@ -510,6 +553,20 @@ class SimServer:
         )
         return EXIT_DONE
 
+    def _count_hung(self, cmds: dict, alive: set[int]) -> None:
+        """lockstep: a live agent whose command missed ``HUNG_AFTER_DEADLINES`` deadlines in a row is
+        hung (not waited for) until it answers again (:meth:`_on_cmd`)."""
+        with self._cond:
+            for i in range(self.count):
+                if i in cmds or i not in alive or i in self._hung:
+                    self._missed_in_row[i] = 0
+                    continue
+                self._missed_in_row[i] += 1
+                if self._missed_in_row[i] >= HUNG_AFTER_DEADLINES:
+                    self._hung.add(i)
+                    self._missed_in_row[i] = 0
+                    self._event(i, "hung")
+
     def _count_robot_ticks(self, cmds: dict, alive: set[int]) -> None:
         """Per robot: one more tick without a command of this tick, one more with its agent gone."""
         for i in range(self.count):
@@ -532,6 +589,10 @@ class SimServer:
                 "ticks_agent_gone": int(self._ticks_dead[i]),
                 "gone_at_s": [e["time_s"] for e in events if e["robot"] == i and e["event"] == "gone"],
                 "back_at_s": [e["time_s"] for e in events if e["robot"] == i and e["event"] == "back"],
+                "hung_at_s": [e["time_s"] for e in events if e["robot"] == i and e["event"] == "hung"],
+                "answering_at_s": [
+                    e["time_s"] for e in events if e["robot"] == i and e["event"] == "answering"
+                ],
             }
             for i in range(self.count)
         ]

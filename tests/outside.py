@@ -156,15 +156,170 @@ def forge(args: argparse.Namespace) -> dict:
                         "msg": message(tick, [0.0] * args.dim),
                     }[kind]
                 forged = moved(genuine[kind], ahead)
-                session.put(key, forged)
+                session.put(key, forged, congestion_control=zenoh.CongestionControl.BLOCK)
                 sent[kind] = {"key": key, "tick": tick_of(forged), "at_tick": tick}
         time.sleep(0.001)
-    time.sleep(0.2)  # let the puts leave before the session closes
+    # A query the sim answers, asked after the last put, is answered once the router has taken every
+    # put before it (tests/test_fuzz.py): then the session may close without dropping any.
+    flush_until_s = time.monotonic() + (30 if sent else 0)
+    while time.monotonic() < flush_until_s:
+        if any(reply.ok is not None for reply in session.get(f"swarm/{run}/config/0", timeout=5.0)):
+            break
     for _, subscriber in sources.values():
         subscriber.undeclare()
     watch.undeclare()
     session.close()
     return {"sent": sent}
+
+
+def alive_key(run: str, robot: int) -> str:
+    return f"swarm/{run}/alive/agent/{robot}"
+
+
+def config_key(run: str, robot: int) -> str:
+    return f"swarm/{run}/config/{robot}"
+
+
+def with_values(payload: bytes, value: float) -> bytes:
+    """The same message with every entry of its vector set to ``value`` (same tick)."""
+    body = msgpack.unpackb(payload, raw=False)
+    size = len(body["m"]) // 8
+    body["m"] = struct.pack(f"<{size}d", *([value] * size))
+    return pack(body)
+
+
+def latest_with_attachment(subscriber) -> tuple[bytes, bytes | None] | None:
+    """The newest queued sample's payload and attachment (a genuine sample's authentication tag: an
+    attacker who sees it may copy it), or None."""
+    newest = None
+    while (sample := subscriber.try_recv()) is not None:
+        attachment = sample.attachment
+        newest = (sample.payload.to_bytes(), None if attachment is None else attachment.to_bytes())
+    return newest
+
+
+def attack(args: argparse.Namespace) -> dict:
+    """One attack of the issue's list (``--kind``), from tick ``--at-tick`` on robot ``--watch``'s poses:
+
+    * ``future2``: two poses dated 10^6 and 10^6 + 1 ticks ahead, put on the wildcard pose key;
+    * ``walk``: 40 poses of robot ``--robot`` dated k+1 ... k+40, in one burst;
+    * ``near``: poses dated k+1 and k+2 on the wildcard pose key;
+    * ``replay``: agent ``--robot``'s newest message put again unchanged, and again with other values;
+
+    Every forged sample carries the attachment of the genuine sample it was made from (copying what
+    a subscriber sees is all an outsider can do to look genuine).
+    * ``flood-pose`` / ``flood-msg``: ``--rate`` samples per second (a genuine one of robot ``--robot``
+      with its tick moved +1) until tick ``--at-tick`` + ``--ticks``;
+    * ``zombie``: a liveliness token on agent ``--robot``'s key, held until the run ends;
+    * ``config``: a queryable on every robot's config key answering the sim's own configuration with
+      ``gain`` set to -1 (declared once the sim answers; the agents must come after it).
+    """
+    if args.server_log is not None:
+        args.endpoint, args.run = server_address(args.server_log)
+    run, kind, robot = args.run, args.kind, args.robot
+    session = open_session(args.endpoint, args.credentials)
+    ring = zenoh.handlers.RingChannel
+    report: dict = {"kind": kind, "sent": 0}
+    entities: list = []
+    if kind == "zombie":
+        entities.append(session.liveliness().declare_token(alive_key(run, robot)))
+    if kind == "config":
+        configs = {}
+        for i in range(args.count):
+            while i not in configs:
+                for reply in session.get(config_key(run, i), timeout=5.0):
+                    if reply.ok is not None:
+                        body = msgpack.unpackb(reply.ok.payload.to_bytes(), raw=False)
+                        body["gain"] = -1.0
+                        configs[i] = pack(body)
+
+        def answer(query) -> None:
+            i = int(str(query.key_expr).rsplit("/", 1)[-1])
+            if i in configs:
+                query.reply(config_key(run, i), configs[i])
+                report["sent"] += 1
+
+        entities.append(session.declare_queryable(f"swarm/{run}/config/*", answer))
+        Path(args.ready).write_text("ready")
+    watch = session.declare_subscriber(pose_key(run, args.watch), ring(64))
+    own = session.declare_subscriber(pose_key(run, robot), ring(64))
+    msgs = session.declare_subscriber(msg_key(run, robot), ring(64))
+    entities += [watch, own, msgs]
+    give_up_s, last_pose_s = time.monotonic() + args.timeout, time.monotonic()
+    done = False
+    newest_pose: bytes | None = None
+    newest_msg: bytes | None = None
+    tag_of: dict[bytes, bytes | None] = {}
+    period_s = 1.0 / args.rate if args.rate else 0.0
+
+    block = zenoh.CongestionControl.BLOCK  # what it counts as sent is what the router took
+
+    def put(key: str, payload: bytes, attachment: bytes | None) -> None:
+        session.put(key, payload, attachment=attachment, congestion_control=block)
+
+    next_s = time.monotonic()
+    while time.monotonic() < give_up_s:
+        payload = latest(watch)
+        tick = tick_of(payload) if payload is not None else None
+        for subscriber, kind_of in ((own, "pose"), (msgs, "msg")):
+            got = latest_with_attachment(subscriber)
+            if got is not None:
+                tag_of.clear() if len(tag_of) > 1000 else None
+                tag_of[got[0]] = got[1]
+                if kind_of == "pose":
+                    newest_pose = got[0]
+                else:
+                    newest_msg = got[0]
+        if tick is not None:
+            last_pose_s = time.monotonic()
+        elif time.monotonic() - last_pose_s > args.quiet_s:
+            break  # the run is over
+        now_tick = tick_of(newest_pose) if newest_pose is not None else None
+        if done or now_tick is None or now_tick < args.at_tick:
+            time.sleep(0.001)
+            continue
+        if kind in ("future2", "near"):
+            offsets = (10**6, 10**6 + 1) if kind == "future2" else (1, 2)
+            for offset in offsets:
+                put(f"swarm/{run}/robot/*/pose", moved(newest_pose, offset), tag_of[newest_pose])
+                report["sent"] += 1
+            report["at_tick"], done = now_tick, True
+        elif kind == "walk":
+            for offset in range(1, 41):
+                put(pose_key(run, robot), moved(newest_pose, offset), tag_of[newest_pose])
+                report["sent"] += 1
+            report["at_tick"], done = now_tick, True
+        elif kind == "replay" and newest_msg is not None:
+            put(msg_key(run, robot), newest_msg, tag_of[newest_msg])  # the genuine sample again
+            put(msg_key(run, robot), with_values(newest_msg, 1000.0), tag_of[newest_msg])
+            report.update(sent=2, at_tick=tick_of(newest_msg))
+            done = True
+        elif kind in ("flood-pose", "flood-msg"):
+            source = newest_pose if kind == "flood-pose" else newest_msg
+            key = pose_key(run, robot) if kind == "flood-pose" else msg_key(run, robot)
+            if now_tick >= args.at_tick + args.ticks:
+                done = True
+                continue
+            if source is None:
+                continue
+            forged, tag = moved(source, 1), tag_of[source]
+            while time.monotonic() >= next_s:  # paced: catches up on the time it was descheduled
+                put(key, forged, tag)
+                report["sent"] += 1
+                next_s += period_s
+            time.sleep(0.0002)
+        else:
+            time.sleep(0.001)
+    # A query the sim answers, asked after the last put, is answered once the router has taken every
+    # put before it (tests/test_fuzz.py): then the session may close without dropping any.
+    flush_until_s = time.monotonic() + (30 if report["sent"] and kind != "config" else 0)
+    while time.monotonic() < flush_until_s:
+        if any(reply.ok is not None for reply in session.get(config_key(run, 0), timeout=5.0)):
+            break
+    for entity in reversed(entities):
+        entity.undeclare()
+    session.close()
+    return report
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -186,10 +341,26 @@ def main(argv: list[str] | None = None) -> int:
     f.add_argument("--timeout", type=float, default=120.0)
     f.add_argument("--quiet-s", type=float, default=10.0, help="give up after this long without a pose")
     f.add_argument("--out", type=Path, required=True)
+    a = sub.add_parser("attack", help="one attack (see attack())")
+    a.add_argument("--kind", required=True)
+    a.add_argument("--endpoint")
+    a.add_argument("--run")
+    a.add_argument("--server-log", type=Path)
+    a.add_argument("--watch", type=int, default=0)
+    a.add_argument("--robot", type=int, default=0)
+    a.add_argument("--count", type=int, default=6, help="robots (config)")
+    a.add_argument("--at-tick", type=int, default=20)
+    a.add_argument("--ticks", type=int, default=100, help="flood length in ticks")
+    a.add_argument("--rate", type=float, default=12_000.0, help="flood samples per second")
+    a.add_argument("--ready", default="/dev/null", help="file written once a config queryable is up")
+    a.add_argument("--credentials")
+    a.add_argument("--timeout", type=float, default=240.0)
+    a.add_argument("--quiet-s", type=float, default=10.0)
+    a.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
     if args.server_log is None and (args.endpoint is None or args.run is None):
         parser.error("give --endpoint and --run, or --server-log")
-    report = forge(args)
+    report = forge(args) if args.command == "forge" else attack(args)
     args.out.write_text(json.dumps(report))
     return 0
 

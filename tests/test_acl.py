@@ -38,8 +38,9 @@ from swarm.runtime import acl, wire  # noqa: E402 (after the path, for the scrip
 ROGUE_WHEELS = (0.4321, -0.4321)
 """Wheel speeds the rogue puts on other robots' command keys: they must never show in the trajectory."""
 FUTURE_TICK = 2**39
-"""The rogue's commands on its own key carry this tick: the server counts them as future commands
-(the proof that its puts do reach the server where they are allowed) and never applies them."""
+"""The rogue's commands on its own key carry this tick; without the run key they carry no valid tag:
+the server counts them as unauthenticated (the proof that its puts do reach the server where they
+are allowed) and never applies them."""
 
 
 # ----------------------------------------------------------------------------- rules and credentials
@@ -296,7 +297,10 @@ def test_acl_run_converges_and_a_rogue_robot_reaches_only_its_neighbourhood(tmp_
     puts = report["puts"]
     assert puts["other_commands"] > 10 * (count - 1) and puts["own_future_commands"] > 10
     stats = json.loads((out / "server_stats.json").read_text())
-    assert 0 < stats["future_commands"] <= puts["own_future_commands"]
+    # it holds robot 3's password, not the run key: its own-key commands reach the server, which
+    # refuses them by their tag (swarm.runtime.wire.RunKey) before reading their tick
+    assert 0 < stats["unauthenticated_commands"] <= puts["own_future_commands"]
+    assert stats["future_commands"] == 0
     assert stats["invalid_commands"] == 0 and stats["old_commands"] == 0
     lines = [json.loads(line) for line in (out / "trajectory.jsonl").read_text().splitlines()]
     assert len(lines) == steps + 1

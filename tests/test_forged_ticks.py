@@ -2,7 +2,8 @@
 
 A separate process that imports none of the project's code (``tests/outside.py``) joins a real lockstep
 run and puts, once each, a genuine sample it received with its tick moved 10^6 ahead: robot 5's pose,
-agent 2's message and robot 3's command. Each receiver must count it as *future* and go on: the
+agent 2's message and robot 3's command. It does not hold the run key, so each receiver must count it
+as *unauthenticated* (its tag no longer matches: swarm.runtime.wire.RunKey) and go on: the
 trajectory (poses and applied wheels, every tick) must equal that of the same run without the forger.
 Under access control the forger holds robot 0's real credentials and forges what it may put: its own
 message and command keys (a pose on robot 0's key is refused by the router); the trajectory must still
@@ -95,11 +96,13 @@ def test_forward_dated_samples_change_nothing_with_and_without_access_control(tm
     _same_trajectory(clean, forged)
     records = _records(out)
     stats = json.loads((out / "server_stats.json").read_text())
-    assert records[5]["poses"]["future"] == 1 and records[5]["poses"]["jumps"] == 0
-    assert [records[i]["messages"]["future"] for i in range(COUNT)] == [0, 1, 0, 1, 0, 0]  # 2's neighbours
-    assert stats["future_commands"] == 1 and stats["ticks_missed"] == 0
+    # The forger does not hold the run key: its samples fail their tag before their tick is read.
+    assert records[5]["poses"]["unauthenticated"] == 1 and records[5]["poses"]["jumps"] == 0
+    assert [records[i]["messages"]["unauthenticated"] for i in range(COUNT)] == [0, 1, 0, 1, 0, 0]
+    assert stats["unauthenticated_commands"] == 1 and stats["ticks_missed"] == 0
     rejected = result["metrics"]["runtime"]["rejected"]
-    assert rejected["future"] == {"poses": 1, "messages": 2, "commands": 1}
+    assert rejected["unauthenticated"] == {"poses": 1, "messages": 2, "commands": 1}
+    assert rejected["future"] == {"poses": 0, "messages": 0, "commands": 0}
     for i, agent in records.items():  # nobody froze: every agent computed every tick
         assert agent["ticks"] == len(clean) - 1 and agent["messages"]["lost"] == 0, (i, agent)
 
@@ -110,9 +113,9 @@ def test_forward_dated_samples_change_nothing_with_and_without_access_control(tm
     _same_trajectory(clean, with_acl)
     records = _records(out)
     stats = json.loads((out / "server_stats.json").read_text())
-    assert [records[i]["messages"]["future"] for i in range(COUNT)] == [0, 1, 0, 0, 0, 1]  # 0's neighbours
-    assert records[0]["poses"]["future"] == 0  # the router refused the forged pose
-    assert stats["future_commands"] == 1 and stats["ticks_missed"] == 0
+    assert [records[i]["messages"]["unauthenticated"] for i in range(COUNT)] == [0, 1, 0, 0, 0, 1]
+    assert records[0]["poses"]["unauthenticated"] == 0  # the router refused the forged pose
+    assert stats["unauthenticated_commands"] == 1 and stats["ticks_missed"] == 0
 
 
 def test_a_forward_dated_pose_does_not_freeze_the_centralized_controller(tmp_path):
@@ -125,5 +128,5 @@ def test_a_forward_dated_pose_does_not_freeze_the_centralized_controller(tmp_pat
     assert sorted(result["sent"]) == ["pose"]
     record = json.loads((out / "logs" / "central.json").read_text())
     stats = json.loads((out / "server_stats.json").read_text())
-    assert record["poses_future"] == 1 and record["ticks"] == len(lines) - 1, record
+    assert record["poses_unauthenticated"] == 1 and record["ticks"] == len(lines) - 1, record
     assert stats["ticks_missed"] == 0

@@ -28,7 +28,9 @@ def session():
 
 def _drain(inlet: Inlet) -> list[bytes]:
     taken = []
-    while (payload := inlet.take()) is not None:
+    while (sample := inlet.take()) is not None:
+        payload, attachment = sample
+        assert attachment is None  # these tests put none
         taken.append(payload)
     return taken
 
@@ -61,7 +63,7 @@ def test_unread_samples_are_counted_when_it_is_undeclared(session) -> None:
     inlet = Inlet(session, "test/inlet/c", CAPACITY)
     for k in range(3):
         session.put("test/inlet/c", bytes([k]))
-    assert inlet.take() == b"\x00"
+    assert inlet.take() == (b"\x00", None)
     inlet.undeclare()
     assert inlet.unread == 2 and inlet.taken == 1
 
@@ -97,4 +99,12 @@ def test_a_signal_handler_interrupts_the_blocking_recv(session) -> None:
         kicker.join()
         signal.signal(signal.SIGUSR1, previous)
     session.put("test/inlet/d", b"after")
-    assert inlet.recv() == b"after" and inlet.taken == 1
+    assert inlet.recv() == (b"after", None) and inlet.taken == 1
+
+
+def test_a_sample_comes_with_its_attachment(session) -> None:
+    """The run key's tag travels in the attachment (swarm.runtime.wire.RunKey): the inlet hands it over."""
+    inlet = Inlet(session, "test/inlet/e", CAPACITY)
+    session.put("test/inlet/e", b"payload", attachment=b"tag")
+    session.put("test/inlet/e", b"bare")
+    assert [inlet.take(), inlet.take(), inlet.take()] == [(b"payload", b"tag"), (b"bare", None), None]

@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from swarm.core.faults import PROCESS_FAULTS
+from swarm.runtime import wire
 from swarm.runtime.acl import write_credentials
 from swarm.runtime.procs import Supervisor, free_tcp_port
 from swarm.scenarios.fault_results import add_fault_results
@@ -385,7 +386,9 @@ def _run_distributed(
         bar = tqdm(total=steps + 1, desc=f"{scenario.name} (pybullet)", unit="tick", leave=False)
     started_s, started_unix_s = time.perf_counter(), time.time()
     first_tick_s = None
-    with _sigterm_as_interrupt(), Supervisor(env=_child_env()) as supervisor:
+    child_env = _child_env()
+    child_env[wire.RUN_KEY_ENV] = wire.new_run_key()  # authenticates the run's samples (wire.RunKey)
+    with _sigterm_as_interrupt(), Supervisor(env=child_env) as supervisor:
 
         def start_agent(robot: int, number: int):
             command = [python, "-m", "robot_agent", "--robot", str(robot), *common, "--nice", str(agent_nice)]
@@ -504,6 +507,7 @@ def runtime_summary(
 
 def rejected_counts(stats: dict, records: dict[int, dict]) -> dict:
     """Samples dropped on receipt, per reason and stream: ``invalid`` (did not decode: swarm.runtime.wire),
+    ``unauthenticated`` (no valid run-key tag: wire.RunKey),
     ``old`` (tick not newer than the newest accepted from that sender), ``future`` (tick beyond the
     receiver's window: swarm.runtime.ticks), ``ring_full`` (drains of an agent's receive ring that found it
     full: samples may have been pushed out unread; 0: none was; the server's commands go through a
@@ -518,7 +522,7 @@ def rejected_counts(stats: dict, records: dict[int, dict]) -> dict:
             "messages": total("messages", reason),
             "commands": int(stats.get(f"{reason}_commands", 0)),
         }
-        for reason in ("invalid", "old", "future", "ring_full")
+        for reason in ("invalid", "unauthenticated", "old", "future", "ring_full")
     }
     counts["callback_errors"] = int(stats.get("callback_errors", 0)) + sum(
         int(record.get("callback_errors", 0)) for record in records.values()

@@ -22,12 +22,24 @@ went (the process was frozen past its lease, the network was cut) or it is a res
 first pose is that of a later tick. :class:`PoseWindow` accepts such a jump only once a second pose
 confirms it (a later tick within (1) counted from the first), so one forged pose cannot move the
 agent's clock: it stays a *candidate* until a pose inside the window supersedes it and is then
-counted as *future*. Tick 0 needs no confirmation (every run starts there).
+counted as *future*. Tick 0 needs no confirmation (every run starts there); before its first pose
+an agent believes no other tick (:meth:`PoseWindow.limit` is 0).
+
+The window only bounds what one forged pose can do. Where anyone may publish on a pose key (no access
+control) and samples are not authenticated (no run key: ``swarm.runtime.wire.RunKey``), a burst of
+poses each inside the window of the one before can still walk it ahead, and the genuine poses then
+look *old*. The window therefore recovers: ``RECOVER_AFTER`` consecutive old poses whose ticks
+advance one by one (the sim's sequence; a replay does not advance) are taken as the genuine clock
+and the window falls back to them (``recovered``), so such a walk freezes a robot for about
+``RECOVER_AFTER`` ticks. With the run key forged poses never reach the window.
 """
 
 from __future__ import annotations
 
 import math
+
+RECOVER_AFTER = 3
+"""Consecutive old poses, each one tick after the one before, after which the window falls back to them."""
 
 MARGIN_TICKS = 1
 """Added to (1): a sample is on its way while the receiver reads its clock."""
@@ -50,14 +62,27 @@ ACCEPT, OLD, FUTURE, CANDIDATE = "accept", "old", "future", "candidate"
 class PoseWindow:
     """The agent's clock: the tick of its newest genuine pose and when it came (eq. 1).
 
-        :meth:`offer` classifies a pose tick: ``ACCEPT`` (newer and inside the window, or confirming the
-        candidate), ``OLD`` (not newer than the newest accepted), ``CANDIDATE`` (beyond the window, held
-        until a second pose confirms it). ``future`` counts candidates that were superseded (forged, or
-        dated ahead for any other reason), ``confirmed`` those a later pose confirmed (genuine, received
-    but skipped); :meth:`close` counts a candidate still pending as future.
+    :meth:`offer` classifies a pose tick: ``ACCEPT`` (newer and inside the window, confirming the
+    candidate, or the ``RECOVER_AFTER``-th of a run of old poses one tick apart), ``OLD`` (not newer
+    than the newest accepted), ``CANDIDATE`` (beyond the window, held until a second pose confirms
+    it). ``future`` counts candidates that were superseded (forged, or dated ahead for any other
+    reason), ``confirmed`` those a later pose confirmed (genuine, received but skipped),
+    ``recovered`` the falls back to a run of old poses; :meth:`close` counts a candidate still
+    pending as future.
     """
 
-    __slots__ = ("at_s", "candidate", "candidate_at_s", "confirmed", "future", "step_s", "tick")
+    __slots__ = (
+        "at_s",
+        "candidate",
+        "candidate_at_s",
+        "confirmed",
+        "future",
+        "old_run",
+        "old_tick",
+        "recovered",
+        "step_s",
+        "tick",
+    )
 
     def __init__(self, step_s: float):
         self.step_s = step_s
@@ -67,6 +92,9 @@ class PoseWindow:
         self.candidate_at_s = 0.0
         self.future = 0
         self.confirmed = 0  # candidates a later pose confirmed: genuine, counted as received
+        self.recovered = 0  # times RECOVER_AFTER consecutive old poses became the clock again
+        self.old_tick = -1  # the tick of the last old pose, and how many in a row came one tick apart
+        self.old_run = 0
 
     def limit(self, now_s: float) -> int:
         """The largest tick a genuine sample may carry now (messages use it too)."""
@@ -76,7 +104,15 @@ class PoseWindow:
 
     def offer(self, tick: int, now_s: float) -> str:
         if tick <= self.tick:
-            return OLD
+            self.old_run = self.old_run + 1 if tick == self.old_tick + 1 else 1
+            self.old_tick = tick
+            if self.old_run < RECOVER_AFTER:
+                return OLD
+            self.recovered += 1  # the window had been walked ahead: back to the sequence that goes on
+            self.candidate, self.old_run = None, 0
+            self.tick, self.at_s = tick, now_s
+            return ACCEPT
+        self.old_run = 0
         candidate = self.candidate
         if tick <= self.limit(now_s) or (
             candidate is not None
