@@ -218,7 +218,7 @@ def test_agent_with_a_robot_id_the_run_does_not_have(sim_of_three, run):
 
 
 @pytest.mark.runtime
-def test_sim_server_on_a_port_in_use(sim_of_three, tmp_path):
+def test_sim_server_on_a_port_in_use(sim_of_three, tmp_path, _run_key):
     endpoint, _ = sim_of_three  # its server listens there already
     result = one_line_error(
         [
@@ -255,7 +255,7 @@ def test_sim_server_on_a_port_in_use(sim_of_three, tmp_path):
     ],
     ids=lambda value: " ".join(value) if isinstance(value, list) else None,
 )
-def test_sim_server_command_line(files, tmp_path, args, expected):
+def test_sim_server_command_line(files, tmp_path, args, expected, _run_key):
     names = {name: str(path) for name, path in files.items()}
     command = [PYTHON, "-m", "sim_server", *(arg.format(**names) for arg in args)]
     if "--out" not in command and "required" not in expected:
@@ -281,3 +281,9 @@ def test_acl_credentials_command(tmp_path):
         "users.txt",
     ]
     assert json.dumps(result.stderr) == '""'
+
+
+@pytest.fixture
+def _run_key(monkeypatch):
+    """A run key, as `swarm run` gives its processes: without one the sim server warns on stderr."""
+    monkeypatch.setenv("SWARM_RUN_KEY", "ab" * 32)

@@ -70,7 +70,7 @@ CENTRAL_TWINS = {  # what robot_agent.central runs for each central kind, on one
         controlled_point(poses, ROBOT.offset_m), args.gain
     ),
     "centralized_mec": lambda poses, args: centralized_mec_velocity(
-        poses, ROBOT.offset_m, ROBOT.v_max_mps, DT, args.reverse
+        poses, ROBOT.v_max_mps, DT, args.reverse
     ),
 }
 
