@@ -344,7 +344,7 @@ def _run_distributed(
         from swarm.sim.policy import PolicyFormatError, load_policy
 
         try:  # before any process starts: a bad file is bad input, not agents that exit with 1
-            load_policy(model, scenario.robot, scenario.robots.count)
+            load_policy(model, scenario.robot, scenario.robots.count, scenario.sim.control_period_s)
         except PolicyFormatError as error:
             raise ScenarioError(f"controller.model: {model}: {error}") from None
         data = scenario.model_dump(mode="json")

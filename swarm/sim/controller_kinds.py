@@ -52,7 +52,7 @@ def _gnn(args: ControllerArgs):
 
     if args.policy is None:
         raise ValueError("controller 'gnn' needs a policy file (controller.model)")
-    return load_policy(args.policy, args.robot, args.robot_count)
+    return load_policy(args.policy, args.robot, args.robot_count, args.control_period_s)
 
 
 def _mec_flood(args: ControllerArgs):
@@ -76,7 +76,7 @@ def _onboard_local_consensus(args: ControllerArgs):
 def _onboard_gnn(args: ControllerArgs):
     from swarm.sim.onboard import onboard_policy
 
-    return onboard_policy(args.policy, args.robot, args.robot_count)
+    return onboard_policy(args.policy, args.robot, args.robot_count, args.control_period_s)
 
 
 def _onboard_mec_flood(args: ControllerArgs):

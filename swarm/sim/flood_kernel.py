@@ -51,8 +51,9 @@ class Weights(NamedTuple):
     steer_biases: np.ndarray  # (L, widest), zero-padded
     steer_shapes: np.ndarray  # (L, 2) int64: (in, out) of layer l
     activation: int  # RELU or TANH
-    output_scale_mps: float
-    rho_cap_m: float
+    output_scale_mps: float  # the steering's output speed (``flood_readout.steering_scales``)
+    rho_cap_m: float  # its distance unit
+    gate_m: float  # its gate distance, 0: no gate
     v_max_mps: float
     wheel_ratio: float  # half axle / offset: the saturation's |u_y| weight (swarm.core.robot.saturate_wheels)
     hessian_eps: float  # flood_readout.HESSIAN_EPS
@@ -187,6 +188,7 @@ def _flood_tick(weights, inputs, outputs, block_size, chunks):
     activation = weights.activation
     output_scale = weights.output_scale_mps
     rho_cap = weights.rho_cap_m
+    gate_m = weights.gate_m
     v_max = weights.v_max_mps
     ratio = weights.wheel_ratio
     rho_eps = weights.rho_eps_m
@@ -212,6 +214,7 @@ def _flood_tick(weights, inputs, outputs, block_size, chunks):
         sin_block = np.zeros(block_size)
         dx_block = np.zeros(block_size)
         dy_block = np.zeros(block_size)
+        gate_block = np.ones(block_size)
         heard_block = np.zeros(block_size, dtype=np.bool_)
         first = (chunk * rows) // chunks
         last = ((chunk + 1) * rows) // chunks
@@ -296,6 +299,7 @@ def _flood_tick(weights, inputs, outputs, block_size, chunks):
                 hidden_in[0, lane] = rx / rho
                 hidden_in[1, lane] = ry / rho
                 hidden_in[2, lane] = min(rho / rho_cap, 1.0)
+                gate_block[lane] = min(rho / gate_m, 1.0) if gate_m > 0.0 else 1.0
             offset = 0
             for layer in range(layers):  # the steering MLP, all lanes of the block together
                 fan_in = steer_shapes[layer, 0]
@@ -333,8 +337,8 @@ def _flood_tick(weights, inputs, outputs, block_size, chunks):
                     u_world[env, i, 0] = 0.0
                     u_world[env, i, 1] = 0.0
                 else:
-                    ux = output_scale * hidden_in[0, lane]
-                    uy = output_scale * hidden_in[1, lane]
+                    ux = output_scale * hidden_in[0, lane] * gate_block[lane]
+                    uy = output_scale * hidden_in[1, lane] * gate_block[lane]
                     biggest = abs(ux) + ratio * abs(uy)
                     scale = min(1.0, v_max / max(biggest, 1e-12))
                     ux *= scale
@@ -370,8 +374,9 @@ def packed(policy) -> Weights:
         steer_biases=biases,
         steer_shapes=np.array([[weight.shape[1], weight.shape[0]] for weight, _ in layers], dtype=np.int64),
         activation=RELU if policy.model["activation"] == "relu" else TANH,
-        output_scale_mps=float(policy.output_scale_mps),
-        rho_cap_m=float(policy.model["rho_cap_m"]),
+        output_scale_mps=float(policy.steering_scales[2]),
+        rho_cap_m=float(policy.steering_scales[0]),
+        gate_m=float(policy.steering_scales[1]),
         v_max_mps=float(policy.robot.v_max_mps),
         wheel_ratio=float(policy.robot.half_axle_m / policy.robot.offset_m),
         hessian_eps=float(flood_readout.HESSIAN_EPS),

@@ -164,13 +164,15 @@ class OnboardMecFlood:
         return np.array(u_world), np.array(message)
 
 
-def onboard_policy(policy_bytes: bytes | None, robot: RobotParams, robot_count: int) -> OnboardController:
+def onboard_policy(
+    policy_bytes: bytes | None, robot: RobotParams, robot_count: int, control_period_s: float | None = None
+) -> OnboardController:
     """The ``gnn`` policy file's bytes as an onboard controller (``robot_count`` feeds the thesis's
-    ``N - 1`` normaliser)."""
+    ``N - 1`` normaliser; ``control_period_s`` the scaled steering of ``gnn_flood``)."""
     if policy_bytes is None:
         raise ValueError("controller 'gnn' needs a policy file (controller.model)")
     try:
         from swarm.sim.policy import load_policy
     except ImportError as error:
         raise ValueError(f"controller 'gnn' needs swarm.sim.policy, not available here: {error}") from None
-    return _PolicyAdapter(load_policy(policy_bytes, robot, robot_count))
+    return _PolicyAdapter(load_policy(policy_bytes, robot, robot_count, control_period_s))

@@ -189,10 +189,16 @@ class Policy(FeatureController):
 
     @classmethod
     def load(
-        cls, source: str | Path | bytes, robot: RobotParams | None = None, robot_count: int = 0
+        cls,
+        source: str | Path | bytes,
+        robot: RobotParams | None = None,
+        robot_count: int = 0,
+        control_period_s: float | None = None,
     ) -> Policy | FloodPolicy:
         """From a file path or from the file's bytes (an agent receives the file over the network).
-        Anything that is not a readable policy file raises :class:`PolicyFormatError` with the reason."""
+        Anything that is not a readable policy file raises :class:`PolicyFormatError` with the reason.
+        ``control_period_s``: the period the policy runs at (a ``gnn_flood`` file with scaled steering
+        reads it; None: the one it was trained at)."""
         try:
             if isinstance(source, bytes):
                 head = source[:4]
@@ -219,7 +225,7 @@ class Policy(FeatureController):
             if not isinstance(metadata, dict):
                 raise ValueError("metadata is not a mapping")
             if metadata.get("model", {}).get("kind") == FLOOD_KIND:
-                return FloodPolicy(metadata, arrays, robot, robot_count)
+                return FloodPolicy(metadata, arrays, robot, robot_count, control_period_s)
             return cls(metadata, arrays, robot, robot_count)
         except PolicyFormatError:
             raise
@@ -321,9 +327,12 @@ class Policy(FeatureController):
 
 
 def load_policy(
-    source: str | Path | bytes, robot: RobotParams | None = None, robot_count: int = 0
+    source: str | Path | bytes,
+    robot: RobotParams | None = None,
+    robot_count: int = 0,
+    control_period_s: float | None = None,
 ) -> Policy | FloodPolicy:
-    return Policy.load(source, robot, robot_count)
+    return Policy.load(source, robot, robot_count, control_period_s)
 
 
 def save_policy(path: str | Path, metadata: dict, arrays: dict[str, np.ndarray]) -> Path:
@@ -358,6 +367,11 @@ class FloodPolicy:
     (neighbours ignore it too). A robot holds still until it has heard a neighbour once; from then
     on it steers toward its memory's target whether or not it hears anybody in a tick (a lost tick
     leaves its memory as it was). Equations: ``swarm.learn.models.flood``.
+
+    The steering's scales (:attr:`steering_scales`) come from the file (``metric`` steering: a distance
+    cap and an output speed in metres and m/s, fixed at training) or from the robot it drives and the
+    period it runs at (``scaled`` steering: distances in units of ``v_max T``, speeds in units of
+    ``v_max``), ``swarm.learn.models.flood``.
     """
 
     centralized = False
@@ -368,6 +382,7 @@ class FloodPolicy:
         arrays: dict[str, np.ndarray],
         robot: RobotParams | None = None,
         robot_count: int = 0,
+        control_period_s: float | None = None,
     ):
         _check_format(metadata)
         self.metadata = metadata
@@ -376,6 +391,20 @@ class FloodPolicy:
         self.robot = robot if robot is not None else RobotParams(**metadata["robot"])
         self.robot_count = robot_count
         self.output_scale_mps = float(metadata["output_scale_mps"])
+        self.steering = self.model.get("steering", flood_readout.METRIC)
+        if self.steering not in flood_readout.STEERING_FORMS:
+            raise PolicyFormatError(
+                f"gnn_flood steering {self.steering!r}, this code reads {flood_readout.STEERING_FORMS}"
+            )
+        trained_period_s = metadata.get("training", {}).get("config", {}).get("control_period_s", 0.05)
+        self.control_period_s = float(trained_period_s if control_period_s is None else control_period_s)
+        self.steering_scales = flood_readout.steering_scales(
+            self.steering,
+            float(self.model.get("rho_cap_m", 0.0)),
+            self.output_scale_mps,
+            self.robot.v_max_mps,
+            self.control_period_s,
+        )
         self._arrays = arrays
         arrays = {name: np.asarray(value, dtype=np.float64) for name, value in arrays.items()}
         try:
@@ -398,7 +427,7 @@ class FloodPolicy:
 
     def fresh(self) -> FloodPolicy:
         """Another robot's instance of the same policy (own, empty memory)."""
-        return FloodPolicy(self.metadata, self._arrays, self.robot, self.robot_count)
+        return FloodPolicy(self.metadata, self._arrays, self.robot, self.robot_count, self.control_period_s)
 
     def reset(self) -> None:
         """Forget the memory and that it has heard anybody (a robot that starts, or restarts, knows
@@ -450,8 +479,12 @@ class FloodPolicy:
         dx, dy = target[..., 0] - poses[..., 0], target[..., 1] - poses[..., 1]
         rx, ry = c * dx + s * dy, -s * dx + c * dy
         rho = np.sqrt(rx * rx + ry * ry + flood_readout.RHO_EPS_M**2)
-        features = np.stack([rx / rho, ry / rho, np.minimum(rho / self.model["rho_cap_m"], 1.0)], axis=-1)
-        return self.output_scale_mps * _mlp(self._steer, features, self._steer_activation)
+        rho_unit_m, gate_m, output_mps = self.steering_scales
+        features = np.stack([rx / rho, ry / rho, np.minimum(rho / rho_unit_m, 1.0)], axis=-1)
+        u_local = output_mps * _mlp(self._steer, features, self._steer_activation)
+        if gate_m > 0.0:  # scaled steering: the command vanishes on the target (swarm.learn.models.flood)
+            u_local = u_local * np.minimum(rho / gate_m, 1.0)[..., None]
+        return u_local
 
     def raw_step(
         self,

@@ -16,7 +16,19 @@ directions, identical at every robot. Readout (robot i, tick k)::
               [h_p^+ / |W_p|, h_p^- / |W_p|];  w = max_p (h_p^+ + h_p^-) / |W_p|  (the widest extent)
     c = argmin_c  tau log sum_q exp((s_q - <c, u_q>) / tau),   tau = exp(log_tau) w       learned tau
     r = R(theta_i)^T (c - x_i),   rho = |r|
-    u_local = output_scale * MLP( r / rho, min(rho / rho_cap, 1) )                   robot frame
+    u_local = output_scale * MLP( r / rho, min(rho / rho_cap, 1) )         robot frame, "metric"
+    u_local = v_max MLP( r / rho, min(rho_n, 1) ) min(rho_n, 1),   rho_n = rho / (v_max T)     "scaled"
+
+Two steering forms. ``metric`` (the files up to ``gnn_flood.npz``): the cap ``rho_cap`` and the output
+speed are metres and m/s fixed at training, so a robot with another v_max, period or success threshold
+meets a law fitted elsewhere. ``scaled`` (``gnn_default.npz`` from 2026-12-02): distances in units of
+``v_max T`` of the robot that runs it and speeds in units of its ``v_max``, which is exactly the scale
+of the expert's law ``u = (c - x) min(v_max / |c - x|, 1 / T)`` (``swarm.core.experts``): that law is
+``v_max min(rho_n, 1) d(r / rho)`` with ``d`` the direction (reflected when the robot reverses), so the
+MLP is left the direction and the wheel saturation's shape, and the gate ``min(rho_n, 1)`` makes the
+command vanish on the target at every scale (``metric`` steering never reaches zero there: its swarm
+ends about 0.1 m across). The MLP imitates the expert's closed form, so learning adds nothing here
+beyond fitting it (``bench/results/gnn_scale.md``: within 2% of ``mec_flood`` at every scale measured).
 
 ``s_q - <c, u_q>`` is how far the swarm reaches beyond c along u_q; over all directions its max is
 the radius of the smallest circle around c that holds the swarm, so the minimiser is the minimum
@@ -45,7 +57,8 @@ Inductive biases built in (and what is learned):
   centre of the flooded extent is built in (the expert's target); the directions and the
   temperature are learned.
 - the steering is rotation-equivariant: it sees the target only in the robot's own frame, as
-  a direction and a capped distance, and the speed/turn/reverse law is a learned MLP.
+  a direction and a capped distance, and the speed/turn/reverse law is a learned MLP; scaled
+  steering is also scale-equivariant (above), with the near-target ramp built in.
 - nothing about the graph is assumed: the memory only grows, so any connected graph (fixed, changing,
   lossy) eventually gives every robot the same target.
 """
@@ -60,7 +73,15 @@ from torch import nn
 
 from swarm.core.robot import RobotParams
 from swarm.learn.models.base import linears, saturate
-from swarm.sim.flood_readout import HESSIAN_EPS, MAX_STEP, RHO_EPS_M, TAU_START
+from swarm.sim.flood_readout import (
+    HESSIAN_EPS,
+    MAX_STEP,
+    METRIC,
+    RHO_EPS_M,
+    STEERING_FORMS,
+    TAU_START,
+    steering_scales,
+)
 from swarm.sim.policy import save_policy
 
 KIND = "gnn_flood"
@@ -90,8 +111,17 @@ class FloodGNN(nn.Module):
         rho_cap_m: float = 0.5,
         output_scale_mps: float = 2.0,
         activation: str = "relu",
+        steering: str = METRIC,
+        v_max_mps: float = 0.5,
+        control_period_s: float = 0.05,
     ):
         super().__init__()
+        if steering not in STEERING_FORMS:
+            raise ValueError(f"steering {steering!r}: one of {STEERING_FORMS}")
+        self.steering = steering
+        # the robot and period it trains at: the scaled steering's units (not part of the file's model)
+        self.v_max_mps = float(v_max_mps)
+        self.control_period_s = float(control_period_s)
         self.directions = int(directions)
         self.steer_hidden = [int(width) for width in steer_hidden]
         self.newton_steps = int(newton_steps)
@@ -115,6 +145,7 @@ class FloodGNN(nn.Module):
             "steer_hidden": self.steer_hidden,
             "newton_steps": self.newton_steps,
             "rho_cap_m": self.rho_cap_m,
+            **({"steering": self.steering} if self.steering != METRIC else {}),
         }
 
     def config(self) -> dict:
@@ -189,8 +220,14 @@ class FloodGNN(nn.Module):
         dx, dy = target[..., 0] - poses[..., 0], target[..., 1] - poses[..., 1]
         rx, ry = c * dx + s * dy, -s * dx + c * dy
         rho = torch.sqrt(rx * rx + ry * ry + RHO_EPS_M**2)
-        features = torch.stack([rx / rho, ry / rho, torch.clamp(rho / self.rho_cap_m, max=1.0)], dim=-1)
-        return self.output_scale_mps * self._mlp(self.steer, features, _activation(self.activation))
+        rho_unit_m, gate_m, output_mps = steering_scales(
+            self.steering, self.rho_cap_m, self.output_scale_mps, self.v_max_mps, self.control_period_s
+        )
+        features = torch.stack([rx / rho, ry / rho, torch.clamp(rho / rho_unit_m, max=1.0)], dim=-1)
+        u_local = output_mps * self._mlp(self.steer, features, _activation(self.activation))
+        if gate_m > 0.0:
+            u_local = u_local * torch.clamp(rho / gate_m, max=1.0)[..., None]
+        return u_local
 
     def step(
         self,
@@ -220,7 +257,14 @@ class FloodGNN(nn.Module):
         return save_policy(path, metadata, arrays)
 
 
-def build_flood(config: dict) -> FloodGNN:
+def build_flood(config: dict, v_max_mps: float = 0.5, control_period_s: float = 0.05) -> FloodGNN:
+    """The model of a policy file's ``model`` section (``v_max_mps`` and ``control_period_s``: the
+    robot and period it trains at, which scaled steering measures in)."""
     architecture = dict(config["model"])
     architecture.pop("kind")
-    return FloodGNN(**architecture, output_scale_mps=config.get("output_scale_mps", 2.0))
+    return FloodGNN(
+        **architecture,
+        output_scale_mps=config.get("output_scale_mps", 2.0),
+        v_max_mps=v_max_mps,
+        control_period_s=control_period_s,
+    )

@@ -54,6 +54,7 @@ from swarm.core import metrics
 from swarm.core.experts import centralized_mec_velocity
 from swarm.core.initial_poses import box_for, random_poses
 from swarm.core.robot import RobotParams, world_to_local
+from swarm.learn.models.base import linears
 from swarm.learn.models.flood import FloodGNN
 from swarm.learn.train import preset_with_overrides
 from swarm.sim.features import saturate_local_velocity
@@ -75,9 +76,13 @@ class FloodConfig:
     steer_hidden: tuple[int, ...] = (16, 16)
     newton_steps: int = 12
     tau_share: float = 0.003  # initial temperature / width of the target's soft minimax (learned)
-    rho_cap_m: float = 0.5
-    output_scale_mps: float = 2.0
+    rho_cap_m: float = 0.5  # metric steering only
+    output_scale_mps: float = 2.0  # metric steering only
     activation: str = "relu"
+    # "scaled": the steering in units of v_max T and v_max (every robot scale); "metric": metres and m/s
+    # of this config (the files up to gnn_flood.npz). A steering stage from an `init` of the other form
+    # refits the init's steering MLP in this form.
+    steering: str = "scaled"
     # episodes
     graphs: tuple[str, ...] = GRAPHS
     sizes: tuple[int, ...] = (4, 6, 8, 10, 12)
@@ -143,14 +148,23 @@ def make_config(preset: str = "default", overrides: dict | None = None) -> Flood
     return config
 
 
-def from_policy_file(path: str | Path) -> FloodGNN:
-    """The torch model of a ``gnn_flood`` policy file, with its weights (float32, as stored)."""
+def from_policy_file(
+    path: str | Path, v_max_mps: float = 0.5, control_period_s: float = 0.05, steering: str | None = None
+) -> FloodGNN:
+    """The torch model of a ``gnn_flood`` policy file, with its weights (float32, as stored), training
+    at ``v_max_mps`` and ``control_period_s``; ``steering``: switch to that steering form (the weights
+    stay, their meaning changes: only a steering stage should follow)."""
     from swarm.learn.models.flood import build_flood
 
     policy = load_policy(path)
     if not isinstance(policy, FloodPolicy):
         raise ValueError(f"{path}: a {policy.kind!r} policy, expected {FloodGNN.kind!r}")
-    model = build_flood({"model": policy.model, "output_scale_mps": policy.output_scale_mps})
+    model_section = dict(policy.model)
+    if steering is not None:
+        model_section["steering"] = steering
+    model = build_flood(
+        {"model": model_section, "output_scale_mps": policy.output_scale_mps}, v_max_mps, control_period_s
+    )
     model.load_state_dict(
         {name: torch.as_tensor(np.asarray(value)) for name, value in policy._arrays.items()}
     )
@@ -159,7 +173,12 @@ def from_policy_file(path: str | Path) -> FloodGNN:
 
 def build(config: FloodConfig) -> FloodGNN:
     if config.init is not None:
-        return from_policy_file(config.init)
+        model = from_policy_file(config.init, config.v_max_mps, config.control_period_s)
+        if model.steering != config.steering:  # a new steering form: a fresh MLP of `steer_hidden`
+            model = from_policy_file(config.init, config.v_max_mps, config.control_period_s, config.steering)
+            model.steer_hidden = [int(width) for width in config.steer_hidden]
+            model.steer = linears([3, *model.steer_hidden, 2])
+        return model
     return FloodGNN(
         config.directions,
         config.steer_hidden,
@@ -168,6 +187,9 @@ def build(config: FloodConfig) -> FloodGNN:
         config.rho_cap_m,
         config.output_scale_mps,
         config.activation,
+        config.steering,
+        config.v_max_mps,
+        config.control_period_s,
     )
 
 
@@ -335,12 +357,17 @@ def batch_loss(model: FloodGNN, positions, poses, labels, robot: RobotParams) ->
 def steering_rows(count: int, robot: RobotParams, config: FloodConfig, rng: np.random.Generator) -> tuple:
     """The expert's own steering law on random (pose, target) pairs: ``centralized_mec`` applies
     ``swarm.core.experts.drive_toward_velocity`` toward the MEC centre, so these are its labels for any
-    target (distances log-uniform from 1 cm to 5 m, every relative bearing). Episodes visit turning
+    target (distances log-uniform from 1 cm to 5 m, every relative bearing; for scaled steering from
+    10^-3 to 10^2 times v_max T, the whole range the law has a shape in). Episodes visit turning
     states only in their first ticks; these rows keep the turning well represented."""
     from swarm.core.experts import drive_toward_velocity
 
     poses = np.concatenate([np.zeros((count, 2)), rng.uniform(-np.pi, np.pi, (count, 1))], axis=-1)
-    distance = np.exp(rng.uniform(np.log(0.01), np.log(5.0), count))
+    if config.steering == "scaled":
+        unit_m = robot.v_max_mps * config.control_period_s
+        distance = unit_m * np.exp(rng.uniform(np.log(1e-3), np.log(1e2), count))
+    else:
+        distance = np.exp(rng.uniform(np.log(0.01), np.log(5.0), count))
     bearing = rng.uniform(-np.pi, np.pi, count)
     targets = np.stack([distance * np.cos(bearing), distance * np.sin(bearing)], axis=-1)
     u_world = drive_toward_velocity(poses, targets, robot.v_max_mps, config.control_period_s)
