@@ -339,8 +339,9 @@ def _flood_tick(weights, inputs, outputs, block_size, chunks):
                 else:
                     ux = output_scale * hidden_in[0, lane] * gate_block[lane]
                     uy = output_scale * hidden_in[1, lane] * gate_block[lane]
-                    biggest = abs(ux) + ratio * abs(uy)
-                    scale = min(1.0, v_max / max(biggest, 1e-12))
+                    # swarm.core.robot's saturation (half axle / offset = ratio / 1.0, the same bits)
+                    largest = kernels.largest_wheel_speed_local(ux, uy, ratio, 1.0)
+                    scale = kernels.wheel_speed_scale(largest, v_max)
                     ux *= scale
                     uy *= scale
                     c = cos_block[lane]

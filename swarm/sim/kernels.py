@@ -26,6 +26,7 @@ from swarm.core import robot
 _SERIES_LIMIT = 0.25
 
 wheel_speed_scale = numba.njit(cache=True)(robot.wheel_speed_scale)
+largest_wheel_speed_local = numba.njit(cache=True)(robot.largest_wheel_speed_local)
 
 
 def _advance_unicycles(

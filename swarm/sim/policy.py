@@ -37,7 +37,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from swarm.core.robot import RobotParams, controlled_point, rotate
+from swarm.core.robot import (
+    RobotParams,
+    controlled_point,
+    largest_wheel_speed_local,
+    rotate,
+    wheel_speed_scale,
+)
 from swarm.sim import flood_readout
 from swarm.sim.features import (
     FeatureSpec,
@@ -253,8 +259,8 @@ class Policy(FeatureController):
             phi_world = np.zeros((spec.hops, 2))
         rotation = np.array([[c, -s], [s, c]])  # world -> robot frame: g @ R(theta)
         ux, uy = (float(v) for v in self._gated_one(np.cumsum(phi_world @ rotation, axis=0)))
-        largest = abs(ux) + self.robot.half_axle_m / self.robot.offset_m * abs(uy)
-        scale = min(1.0, self.robot.v_max_mps / max(largest, 1e-12))
+        largest = largest_wheel_speed_local(ux, uy, self.robot.half_axle_m, self.robot.offset_m)
+        scale = float(wheel_speed_scale(largest, self.robot.v_max_mps))
         ux, uy = ux * scale, uy * scale
         message = np.empty(spec.message_dim)
         message[0], message[1] = px, py
