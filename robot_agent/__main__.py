@@ -177,6 +177,11 @@ def _exit_reason(args: argparse.Namespace, robot: int | None) -> str:
     return f": {describe_failure(record, args)}" if record.get("exit_reason") else ""
 
 
+EXITS_FILE = "launcher_exits.jsonl"
+"""In ``--log-dir``: one line per forked agent that ended, ``{"robot", "pid", "exit_status"}`` (a negative
+status: killed by that signal)."""
+
+
 def launch(robots: list[int], args: argparse.Namespace, settings: dict[int, dict]) -> int:
     """Fork one agent process per robot and wait for them; SIGTERM/SIGINT are passed on."""
     children: dict[int, int] = {}
@@ -217,6 +222,9 @@ def launch(robots: list[int], args: argparse.Namespace, settings: dict[int, dict
             continue
         child: int | None = children.pop(pid, None)
         code = os.waitstatus_to_exitcode(status)
+        if args.log_dir:  # every exit the launcher saw, for the run's health (swarm.runtime.health)
+            with open(Path(args.log_dir) / EXITS_FILE, "a") as exits:
+                exits.write(json.dumps({"robot": child, "pid": pid, "exit_status": code}) + "\n")
         if code != 0:
             why = _exit_reason(args, child)
             print(

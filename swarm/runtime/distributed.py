@@ -33,10 +33,10 @@ from pathlib import Path
 import numpy as np
 
 from swarm.core.faults import PROCESS_FAULTS
-from swarm.runtime import wire
+from swarm.runtime import health, wire
 from swarm.runtime.acl import write_credentials
 from swarm.runtime.procs import Supervisor, free_tcp_port
-from swarm.scenarios.fault_results import add_fault_results
+from swarm.scenarios.fault_results import add_fault_results, read_events
 from swarm.scenarios.report import write_pictures
 from swarm.scenarios.results import (
     prepare_results_dir,
@@ -356,6 +356,7 @@ def _run_distributed(
     stale = [
         out_dir / name for name in ("trajectory.jsonl", "server_stats.json", "metrics.json", "events.jsonl")
     ]
+    stale.append(logs / "launcher_exits.jsonl")  # robot_agent.__main__.EXITS_FILE
     for path in [*stale, *logs.glob("agent_*.json"), *logs.glob("replaced/agent_*.json")]:
         path.unlink(missing_ok=True)
     run_id = _run_id(scenario.name)
@@ -469,6 +470,19 @@ def _run_distributed(
         outcome["runtime"]["agents_ready_s"] = round(stats["agents_ready_unix_s"] - started_unix_s, 3)
     if scenario.faults:  # judged on the live robots and graph at the end (swarm.scenarios.fault_results)
         add_fault_results(outcome, scenario, out_dir, records, times_s, poses)
+    outcome["health"] = health.health(
+        stats=stats,
+        records=records,
+        events=read_events(out_dir / "events.jsonl"),
+        launcher_exits=health.read_jsonl(logs / "launcher_exits.jsonl"),
+        never_back=(outcome.get("faults") or {}).get("agents_restarted_never_back", []),
+        controller=controller_name,
+        controller_status=agents_exit,
+        rejected=outcome["runtime"]["rejected"],
+        mode=scenario.sim.mode,
+        control_period_s=scenario.sim.control_period_s,
+        access_control=scenario.sim.acl,
+    )
     write_metrics(out_dir, outcome)
     write_pictures(out_dir, scenario, times_s, poses, outcome)
     return outcome
