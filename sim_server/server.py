@@ -54,6 +54,7 @@ import zenoh
 
 from sim_server.physics import PhysicsWorld
 from swarm.core.exit_codes import ExitCode
+from swarm.core.faults import tick_of
 from swarm.core.robot import saturate_wheels
 from swarm.runtime import wire
 from swarm.scenarios.results import TrajectoryWriter, prepare_results_dir
@@ -206,6 +207,12 @@ class SimServer:
         self._timing = {"publish": [0.0, 0.0], "trajectory": [0.0, 0.0]}  # part -> [wall s, CPU s]
         self._newest_cmd_tick: dict[int, int] = {}  # robot -> tick of the newest command accepted
         self._stats_written_s = -math.inf  # written at the first tick: a server killed early leaves it too
+        self._back_ticks: dict[int, list[int]] = {}  # robot -> ticks of its "back" events (a new token)
+        self._restart_ticks: dict[int, list[int]] = {}  # lockstep: robot -> ticks of its restart_agent faults
+        for fault in scenario.faults:
+            if fault.kind == "restart_agent" and fault.robot is not None:
+                self._restart_ticks.setdefault(fault.robot, []).append(tick_of(fault.at_s or 0.0, self.dt_s))
+        self._restarts_given_up = np.zeros(self.count, dtype=int)
         self._silent_from = np.full(self.count, -1)  # first tick of a robot's current run without a command
         self._ticks_tracked = 0  # ticks given to _track_silence
         self.stats: dict[str, Any] = {
@@ -271,6 +278,8 @@ class SimServer:
         with self._cond:
             if sample.kind == zenoh.SampleKind.PUT:
                 event = "back" if robot in self._seen else "alive"
+                if event == "back":
+                    self._back_ticks.setdefault(robot, []).append(self._tick)
                 self._alive.add(robot)
                 self._seen.add(robot)
             else:
@@ -452,6 +461,7 @@ class SimServer:
                     break
                 if self._stop:
                     return EXIT_INTERRUPTED
+                self._wait_for_restarted(tick)
                 self._publish(publishers, tick, poses)
                 deadline_s = self._published_at_s[tick] + sim.deadline_s
                 with self._cond:
@@ -574,6 +584,28 @@ class SimServer:
             realtime_factor=steps * self.dt_s / wall_s if wall_s > 0 else None,
         )
         return EXIT_DONE
+
+    def _wait_for_restarted(self, tick: int) -> None:
+        """lockstep: before publishing ``tick``, wait for every agent that a ``restart_agent`` fault due
+        by now has killed and whose new process's token is not up yet (the runner kills the old agent
+        once the server is on the fault's tick, then starts the new one, whose start-up takes seconds
+        of wall time: without this wait a short run could end before the new agent ever drove its
+        robot). Waits at most ``startup_timeout_s`` per restart, then goes on without it (the run's
+        health then names the restart that never came back); ``restart_waits`` in the stats."""
+        for robot, ticks in self._restart_ticks.items():
+            due = [t for t in ticks if t <= tick]
+            with self._cond:
+                backs = sum(t >= due[0] for t in self._back_ticks.get(robot, [])) if due else 0
+                if robot in self._alive or backs + self._restarts_given_up[robot] >= len(due):
+                    continue  # none due, the old agent not killed yet, or the new one is up
+                start_s = time.perf_counter()
+                back = self._wait(lambda r=robot: r in self._alive, start_s + self.options.startup_timeout_s)
+                if not back and not self._stop:
+                    self._restarts_given_up[robot] += 1
+                waited_s = round(time.perf_counter() - start_s, 4)
+                self.stats.setdefault("restart_waits", []).append(
+                    {"robot": robot, "tick": tick, "wall_s": waited_s, "back": back}
+                )
 
     def _count_hung(self, cmds: dict, alive: set[int]) -> None:
         """lockstep: a live agent whose command missed ``HUNG_AFTER_DEADLINES`` deadlines in a row is
