@@ -17,7 +17,8 @@ import signal
 import numpy as np
 import psutil
 import pytest
-from test_runtime import Run, scenario_file
+from test_process_faults import fault_scenario, read_events
+from test_runtime import Run, agent_records, scenario_file
 
 from swarm.runtime import health
 from swarm.scenarios.results import read_trajectory
@@ -115,3 +116,22 @@ def test_silent_spans_and_events_are_judged_against_what_the_runner_did():
     assert health.failures(health.incidents(stats, {}, events, [], [3]), "agents", 0) == [
         "robot 3's restarted agent never came back"
     ]
+
+
+def test_lockstep_waits_for_a_restarted_agent_even_when_the_run_would_end_before_it_starts(tmp_path):
+    """The restart race: 50 lockstep ticks take well under the second a fresh agent process needs
+    to start, so a server that does not wait for it ends the run first ("robot 0: stopped",
+    never back). It waits: the new process (the pid of the restart event) drives robot 0."""
+    path, _ = fault_scenario(
+        tmp_path, "restart-agent", duration=3.0, faults=[{"at": 0.5, "kind": "restart_agent", "robot": 0}]
+    )
+    out = tmp_path / "out"
+    code, _, stderr = Run(path, out).finish()
+    metrics = json.loads((out / "metrics.json").read_text())
+    restart = next(e for e in read_events(out) if e["kind"] == "restart_agent")
+    record = agent_records(out)[0]
+    assert record["pid"] == restart["pid"] and record["first_tick"] >= restart["tick"], (record, stderr)
+    assert metrics["faults"]["agents_restarted_never_back"] == [] and not metrics["health"]["failures"]
+    wheels = _wheels(out)
+    assert np.abs(wheels[record["first_tick"] :, 0]).max() > 0  # its commands moved robot 0
+    assert code in (0, 1) and "the run failed" not in stderr
