@@ -136,7 +136,14 @@ def draw_plan(seed: int) -> dict:
         "topology": {"kind": topology},
         "robot": {"v_max": 0.5},
         "controller": {"kind": "local_consensus", "gain": 1.0},
-        "sim": {"mode": mode, "control_period": PERIOD_S, "duration": duration_s, "server_lost_s": 1.0},
+        # acl off: the forger is an outsider without credentials (the run key still authenticates)
+        "sim": {
+            "mode": mode,
+            "control_period": PERIOD_S,
+            "duration": duration_s,
+            "server_lost_s": 1.0,
+            "acl": False,
+        },
         "faults_seed": rng.randrange(1000),
         # a chain of touching robots (0.24 m each) plus 0.3 m: met by every connected graph that gathers
         "success": {

@@ -9,7 +9,9 @@ stderr: a scenario that does not load, an endpoint that cannot be listened on, .
 
 A scenario with ``sim.acl: true`` needs ``--users FILE``: the agents' ``user:password`` lines
 (``python -m swarm.runtime.acl credentials``); the router then admits only those users, each to its own
-neighbourhood of the graph (``swarm.runtime.acl``).
+neighbourhood of the graph (``swarm.runtime.acl``). ``sim.acl`` unset: access control is on with
+``--users`` and off without (``server_stats.json`` says which); ``sim.acl: false``: off, and
+``--users`` is bad input.
 """
 
 from __future__ import annotations
@@ -113,10 +115,12 @@ def main(argv: list[str] | None = None) -> int:
         if scenario.controller.kind == "gnn":
             policy = resolve_model_path(model, Path(args.scenario)).read_bytes()
         settings = {}
-        if scenario.sim.acl:
+        if scenario.sim.acl or (scenario.sim.acl is None and args.users):  # unset: on with --users
             settings = acl_settings(scenario, args)
         elif args.users:
-            raise ValueError(f"--users is for scenarios with sim.acl: true, and {args.scenario} has not")
+            raise ValueError(
+                f"--users is for scenarios with access control, and {args.scenario} sets sim.acl: false"
+            )
         if args.admin_space:
             settings = {**settings, **ADMIN_SPACE}
         run_key = wire.RunKey.from_env()  # ValueError (bad input) when SWARM_RUN_KEY is not a key

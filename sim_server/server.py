@@ -217,6 +217,7 @@ class SimServer:
         self._ticks_tracked = 0  # ticks given to _track_silence
         self.stats: dict[str, Any] = {
             "authentication": "run key" if key is not None else "off",
+            "access_control": "transport/auth/usrpwd" in options.zenoh_settings,  # swarm.runtime.acl
             "invalid_commands": 0,
             "unauthenticated_commands": 0,
             "late_commands": 0,

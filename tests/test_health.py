@@ -135,3 +135,35 @@ def test_lockstep_waits_for_a_restarted_agent_even_when_the_run_would_end_before
     wheels = _wheels(out)
     assert np.abs(wheels[record["first_tick"] :, 0]).max() > 0  # its commands moved robot 0
     assert code in (0, 1) and "the run failed" not in stderr
+
+
+def _endpoint_of(run: Run) -> str:
+    for child in psutil.Process(run.process.pid).children(recursive=True):
+        command = child.cmdline()
+        if "sim_server" in command and "--listen" in command:
+            return command[command.index("--listen") + 1]
+    raise AssertionError("no sim server")
+
+
+def test_access_control_is_on_by_default_and_off_only_when_asked_with_one_warning(tmp_path):
+    """The default run admits no client without the run's credentials (an outsider's session is
+    refused mid-run) and says so; ``sim.acl: false`` runs open, with one warning line."""
+    import outside  # imports none of the project's code
+
+    run = Run(scenario_file(tmp_path, "cycle-local_consensus", sim__duration=8.0), tmp_path / "on")
+    run.wait_for(lambda: run.ticks() >= 5)
+    with pytest.raises(outside.zenoh.ZError):
+        outside.open_session(_endpoint_of(run), deadline_s=3.0).close()
+    code, stdout, stderr = run.finish()
+    metrics = json.loads((tmp_path / "on" / "metrics.json").read_text())
+    assert metrics["runtime"]["access_control"] is True and "access control: on" in stdout, stdout
+    assert "access control is OFF" not in stderr and code in (0, 1)
+
+    path = scenario_file(tmp_path, "cycle-local_consensus", sim__duration=2.0, sim__acl=False)
+    code, stdout, stderr = Run(path, tmp_path / "off").finish()
+    assert [line for line in stderr.splitlines() if "warning" in line] == [
+        "swarm run: warning: sim.acl: false: access control is OFF; anyone who reaches the run's port can"
+        " join it and publish on any key (docs/distributed-runtime.md)"
+    ]
+    assert "access control: OFF (sim.acl: false)" in stdout
+    assert json.loads((tmp_path / "off" / "metrics.json").read_text())["runtime"]["access_control"] is False

@@ -272,6 +272,7 @@ def health(
     mode: str,
     control_period_s: float,
     access_control: bool,
+    access_control_off_why: str | None = None,
 ) -> dict:
     """The ``health`` block of metrics.json; ``failures`` not empty: the run failed (exit 1)."""
     found = incidents(stats, records, events, launcher_exits, never_back)
@@ -288,6 +289,7 @@ def health(
         "samples": samples(stats, records, rejected),
         "wall": slow,
         "access_control": access_control,
+        "access_control_off_why": None if access_control else access_control_off_why,
         "frozen_after_ticks": FROZEN_AFTER_TICKS,
     }
     block["lines"] = health_lines(block)
@@ -296,7 +298,9 @@ def health(
 
 def health_lines(block: Mapping[str, Any]) -> list[str]:
     """The health block in words, for the printed summary."""
-    lines = [f"access control: {'on' if block.get('access_control') else 'OFF'}"]
+    why = block.get("access_control_off_why")
+    state = "on" if block.get("access_control") else "OFF"
+    lines = [f"access control: {state}" + (f" ({why})" if why else "")]
     for incident in block.get("incidents", []):
         fault = incident.get("fault")
         why = f"scheduled ({fault})" if incident["scheduled"] and fault else "NOT scheduled"
