@@ -31,7 +31,7 @@ import zenoh
 
 from robot_agent.agent import EXIT_FAILED, AgentOptions, RobotAgent
 from swarm.core.exit_codes import ExitCode
-from swarm.runtime import acl, wire
+from swarm.runtime import acl, tls, wire
 from swarm.runtime.procs import die_with_parent
 from swarm.runtime.usage import OneLineArgumentParser, configure_logging, one_line
 
@@ -99,6 +99,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--user", help="Zenoh user name (sim.acl; default with --password: robot-<i>)")
     parser.add_argument("--password", help="Zenoh password (sim.acl; prefer --credentials: not in ps)")
+    parser.add_argument(
+        "--tls", help="directory with the run's ca.pem and this robot's robot-<i>.{pem,key} (tls/ endpoints)"
+    )
     parser.add_argument("--log-dir", help="write agent_<i>.json (and agent_<i>.log with --robots) here")
     parser.add_argument("--die-with-parent", action="store_true", help="exit when the parent process dies")
     parser.add_argument(
@@ -120,6 +123,8 @@ def zenoh_settings(robot: int, args: argparse.Namespace) -> dict:
         settings.update(acl.client_settings(*acl.read_credentials(args.credentials, robot)))
     elif args.password is not None:
         settings.update(acl.client_settings(args.user or acl.user_of(robot), args.password))
+    if args.tls:  # swarm.runtime.tls.TlsError (a ValueError) when a file is missing
+        settings.update(tls.client_settings(args.tls, robot))
     return settings
 
 
