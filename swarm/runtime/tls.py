@@ -166,7 +166,7 @@ def client_settings(directory: Path | str, robot: int) -> dict[str, Any]:
         "transport/link/tls/root_ca_certificate": ca,
         "transport/link/tls/connect_certificate": cert,
         "transport/link/tls/connect_private_key": key,
-        "transport/link/tls/enable_mtls": True,  # a client sends its certificate only with it (zenoh-link-tls)
+        "transport/link/tls/enable_mtls": True,  # else a client sends no certificate (zenoh-link-tls)
     }
 
 
