@@ -250,6 +250,7 @@ def test_sim_server_on_a_port_in_use(sim_of_three, tmp_path, _run_key):
         (["--scenario", str(SCENARIO), "--listen", "nonsense"], "Endpoints must be of the form"),
         (["--scenario", str(ACL_SCENARIO)], "sets sim.acl: give --users FILE"),
         (["--scenario", str(ACL_SCENARIO), "--users", "{missing}"], "no such users file"),
+        (["--scenario", str(SCENARIO), "--tls", "{missing}"], "ca.pem: no such file"),
         (["--scenario", "{open_scenario}", "--users", "{credentials}"], "sets sim.acl: false"),
         (["--scenario", str(SCENARIO), "--out", "/proc/no/such/dir"], "/proc/no"),
         (["--scenario", str(SCENARIO)], "the following arguments are required: --out"),
