@@ -17,12 +17,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import subprocess
 import sys
 import time
 from pathlib import Path
 
-from _output import ROOT, add_output_arguments, output_dir
+from _output import DEFAULT_OUT, ROOT, add_output_arguments, output_dir
 
 SCENARIO = ROOT / "scenarios" / "faults" / "restart-agent.yaml"
 
@@ -70,7 +71,7 @@ def main() -> int:
     out_dir = output_dir(args)
     rows = []
     for index in range(args.runs):
-        run_dir = out_dir / "restart_soak_runs" / f"run{index:03d}"
+        run_dir = DEFAULT_OUT / "restart_soak_runs" / f"run{index:03d}"  # untracked scratch (runs/)
         start_s = time.perf_counter()
         result = subprocess.run(
             [sys.executable, "-m", "swarm.cli", "run", str(SCENARIO), "--out", str(run_dir), "--quiet"],
@@ -79,6 +80,8 @@ def main() -> int:
             cwd=ROOT,
         )
         problems = check(run_dir, result.returncode)
+        if not problems:
+            shutil.rmtree(run_dir, ignore_errors=True)  # a failing run's directory is kept to look at
         rows.append(
             {
                 "run": index,
