@@ -82,7 +82,14 @@ def scenario_data(
 ) -> dict:
     """A local-consensus scenario of ``count`` robots on a connected random graph (mean degree ~4)."""
     low, high = box_for(count)
-    sim: dict = {"engine": "pybullet", "mode": mode, "control_period": 0.05, "duration": duration_s}
+    # acl off, as when these numbers were measured: the benchmark's probe session has no credentials
+    sim: dict = {
+        "engine": "pybullet",
+        "mode": mode,
+        "control_period": 0.05,
+        "duration": duration_s,
+        "acl": False,
+    }
     if physics_hz is not None:
         sim["physics_hz"] = physics_hz
     if solver_iterations is not None:

@@ -7,7 +7,15 @@ random schedule drawn from the run's seed:
 - process faults done by the runner: ``kill_agent``, ``hang_agent``, ``restart_agent``, ``kill_server``;
 - link faults: ``drop_link`` (with or without ``restore_link``), ``packet_loss``, ``delay``;
 - forged samples from an outside process (``tests/outside.py``, which imports none of the project's
-  code): a genuine pose, message and command of the run, each put once with its tick moved 10^6 ahead.
+  code): a genuine pose, message and command of the run, each put once with its tick moved 10^6 ahead;
+- or, instead, one outside attack of issue 19 (``tests/outside.py attack``: two poses 10^6 ahead on
+  the wildcard key, the 40-pose walk, +1/+2 poses, a replayed message, a pose or message flood of
+  3000/s for 20 ticks, a zombie liveliness token on an agent's key);
+- a death that no fault scheduled (runs without a process fault, 1 in 5): a SIGKILL from outside of
+  one agent or of the agents' launcher once the trajectory has a drawn number of ticks.
+
+The runs are open (``sim.acl: false``: the outsiders have no credentials); the run key still
+authenticates every sample.
 
 After each run it checks the invariants (a failed one is a *violation*):
 
@@ -18,13 +26,22 @@ After each run it checks the invariants (a failed one is a *violation*):
 3. ``results``: ``metrics.json`` and ``server_stats.json`` parse, ``swarm report`` on the directory exits
    0 or 1 and agrees with the run on ``converged``;
 4. ``converge``: a run not ended by ``kill_server`` whose live graph is connected at the end converged
-   (the thresholds are loose: a chain of touching robots; the durations leave room for the faults);
+   (the thresholds are loose: a chain of touching robots; the durations leave room for the faults;
+   not judged after an outside kill);
 5. ``counts``: ``events.jsonl`` holds one line per process fault done (a hang two: hang and resume) and
    nothing else; every receiver that no process fault touched counted each forged sample meant for it
    as ``future`` exactly once (its pose, each live neighbour of the forged message's sender, the
    server's command); a scheduled drop, loss or delay shows in the agents' counters;
-6. ``replay``: a lockstep run with link faults only (and forged samples) is run a second time without
-   the forger: the trajectories (poses and applied wheels, every tick) are identical.
+6. ``replay``: a lockstep run with link faults only (and forged samples, or an attack other than the
+   zombie token) is run a second time without the outsider: the trajectories (poses and applied wheels,
+   every tick) are identical;
+7. ``named``: the summary names every fault that happened: each process fault done (``fault:`` line),
+   each agent the server saw go that no fault touched (``died``/``away``, ``NOT scheduled``), samples
+   rejected when forged or attacking samples were sent, whether access control was on; an outside
+   SIGKILL fails the run (exit 1) naming each killed robot as an unscheduled death (or freeze, when a
+   zombie token outlived it) no earlier than the last tick on disk when it was killed (one earlier in
+   realtime, where the server's tick is the last published while it waits for the next boundary), on
+   stderr; the exit status is 1 whenever ``health.failures`` is not empty (swarm.runtime.health).
 
 Run: ``python bench/chaos.py --runs 200 --seed 1`` (under ``nice`` on a shared machine). Writes
 ``bench/results/chaos.json`` (every run: its schedule, exit status, wall time and violations) and
@@ -59,6 +76,11 @@ AHEAD_TICKS = 10**6
 RUN_TIMEOUT_S = 240.0
 PROCESS_FAULTS = ("kill_agent", "hang_agent", "restart_agent", "kill_server")
 LINK_FAULTS = ("drop_link", "packet_loss", "delay")
+ATTACKS = ("future2", "walk", "near", "replay", "flood-pose", "flood-msg", "zombie")
+"""``tests/outside.py attack --kind``: the outside attacks of issue 19 a run can meet after its start (the
+config queryable must come before the agents: tests/test_outside_attacks.py)."""
+FLOOD_RATE, FLOOD_TICKS = 3000, 20
+"""A flood's samples per second and length in ticks (lower than the tests' 12,000/s: 3 runs share 2 cores)."""
 REPORT_LOCK = threading.Lock()
 
 
@@ -111,8 +133,16 @@ def draw_plan(seed: int) -> dict:
             start_s = round(rng.uniform(0.0, 2.0), 2)
             until_s = round(start_s + rng.uniform(0.5, 2.0), 2)
             faults.append({"at": start_s, "until": until_s, "kind": "delay", "ticks": rng.randint(1, 4)})
-    forge = None
-    if rng.random() < 0.6:
+    forge, attack, outside_kill = None, None, None
+    if rng.random() < 0.3:  # an outside attack (tests/outside.py attack) instead of the forger
+        attack = {
+            "kind": rng.choice(ATTACKS),
+            "at_tick": rng.randint(10, steps // 3),
+            "robot": rng.randrange(count),
+            "watch": rng.randrange(count),
+        }
+        kinds.append(f"attack-{attack['kind']}")
+    elif rng.random() < 0.6:
         forge = {
             "at_tick": rng.randint(10, steps // 3),
             "pose": rng.randrange(count),
@@ -120,6 +150,13 @@ def draw_plan(seed: int) -> dict:
             "cmd": rng.randrange(count),
         }
         kinds.append("forged")
+    if not process and rng.random() < 0.2:  # a death no fault scheduled: SIGKILL from outside
+        outside_kill = {
+            "target": "launcher" if rng.random() < 0.3 else "agent",
+            "robot": rng.randrange(count),
+            "at_tick": rng.randint(10, steps // 2),
+        }
+        kinds.append(f"outside-kill-{outside_kill['target']}")
     scenario = {
         "name": f"chaos-{seed}",
         "robots": {
@@ -136,7 +173,14 @@ def draw_plan(seed: int) -> dict:
         "topology": {"kind": topology},
         "robot": {"v_max": 0.5},
         "controller": {"kind": "local_consensus", "gain": 1.0},
-        "sim": {"mode": mode, "control_period": PERIOD_S, "duration": duration_s, "server_lost_s": 1.0},
+        # acl off: the forger is an outsider without credentials (the run key still authenticates)
+        "sim": {
+            "mode": mode,
+            "control_period": PERIOD_S,
+            "duration": duration_s,
+            "server_lost_s": 1.0,
+            "acl": False,
+        },
         "faults_seed": rng.randrange(1000),
         # a chain of touching robots (0.24 m each) plus 0.3 m: met by every connected graph that gathers
         "success": {
@@ -146,7 +190,15 @@ def draw_plan(seed: int) -> dict:
     }
     if faults:
         scenario["faults"] = faults
-    return {"seed": seed, "scenario": scenario, "forge": forge, "kinds": kinds, "steps": steps}
+    return {
+        "seed": seed,
+        "scenario": scenario,
+        "forge": forge,
+        "attack": attack,
+        "outside_kill": outside_kill,
+        "kinds": kinds,
+        "steps": steps,
+    }
 
 
 # ----------------------------------------------------------------------------- one run
@@ -158,13 +210,81 @@ def _env() -> dict[str, str]:
     return env
 
 
-def _swarm_run(scenario_path: Path, out: Path, forge: dict | None) -> dict:
-    """``swarm run`` (and the forger beside it); exit status, output, what the forger sent."""
+def _lines(out: Path) -> int:
+    with contextlib.suppress(OSError):
+        return (out / "trajectory.jsonl").read_bytes().count(b"\n")
+    return 0
+
+
+def _kill_from_outside(out: Path, kill: dict, run: subprocess.Popen, done: dict) -> None:
+    """SIGKILL robot ``kill["robot"]``'s agent, or the agents' launcher, once the trajectory has
+    ``kill["at_tick"]`` lines; ``done``: the tick (lines) it was killed after and the pid."""
+    while run.poll() is None and _lines(out) < kill["at_tick"]:
+        time.sleep(0.01)
+    if run.poll() is not None:
+        return
+    pid = None
+    if kill["target"] == "agent":
+        with contextlib.suppress(OSError, ValueError):
+            pid = json.loads((out / "logs" / f"agent_{kill['robot']}.json").read_text())["pid"]
+    else:  # the launcher: its forked agents share its command line, but their parent is the launcher
+        matching: dict[int, int] = {}  # pid -> parent pid
+        for entry in Path("/proc").iterdir():
+            with contextlib.suppress(OSError, ValueError, IndexError):
+                words = (entry / "cmdline").read_bytes().split(b"\0")
+                if b"robot_agent" in words and b"--robots" in words and str(out / "logs").encode() in words:
+                    matching[int(entry.name)] = int((entry / "stat").read_text().rsplit(")", 1)[1].split()[1])
+        pid = next((p for p, parent in matching.items() if parent not in matching), None)
+    if pid is None:
+        return
+    done["after_tick"] = _lines(out)
+    with contextlib.suppress(ProcessLookupError):
+        os.kill(pid, 9)
+        done["pid"] = pid
+
+
+def _swarm_run(
+    scenario_path: Path,
+    out: Path,
+    forge: dict | None,
+    attack: dict | None = None,
+    outside_kill: dict | None = None,
+    robots: int = 0,
+) -> dict:
+    """``swarm run`` (and the forger or attacker beside it, and a SIGKILL from outside); exit status,
+    output, what the forger or attacker sent, when the outside kill was done."""
     command = [sys.executable, "-m", "swarm.cli", "run", str(scenario_path), "--out", str(out), "--quiet"]
     started_s = time.perf_counter()
     run = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env())
-    sent, forger_error = None, None
+    sent, forger_error, attacked, killed = None, None, None, {}
+    killer = None
+    if outside_kill is not None:
+        killer = threading.Thread(
+            target=_kill_from_outside, args=(out, outside_kill, run, killed), daemon=True
+        )
+        killer.start()
     try:
+        if attack is not None:
+            sent_path = out.parent / f"{out.name}-attack.json"
+            log = out / "logs" / "sim_server.log"
+            attacker = [
+                sys.executable,
+                str(OUTSIDE),
+                "attack",
+                "--kind",
+                attack["kind"],
+                "--server-log",
+                str(log),
+            ]
+            attacker += ["--at-tick", str(attack["at_tick"]), "--robot", str(attack["robot"])]
+            attacker += ["--watch", str(attack["watch"]), "--count", str(robots)]
+            attacker += ["--rate", str(FLOOD_RATE), "--ticks", str(FLOOD_TICKS), "--timeout", "90"]
+            attacker += ["--quiet-s", "3", "--out", str(sent_path)]
+            done = subprocess.run(attacker, capture_output=True, text=True, timeout=180)
+            if done.returncode == 0:
+                attacked = json.loads(sent_path.read_text())
+            else:
+                forger_error = done.stderr.strip().splitlines()[-1:] or [f"status {done.returncode}"]
         if forge is not None:  # started at once: it connects as soon as the server listens
             sent_path = out.parent / f"{out.name}-sent.json"
             log = out / "logs" / "sim_server.log"
@@ -183,11 +303,15 @@ def _swarm_run(scenario_path: Path, out: Path, forge: dict | None) -> dict:
         run.kill()
         stdout, stderr = run.communicate()
         stderr += "\nchaos: swarm run timed out"
+    if killer is not None:
+        killer.join(timeout=5)
     return {
         "status": run.returncode,
         "stdout": stdout,
         "stderr": stderr,
         "sent": sent,
+        "attacked": attacked,
+        "killed": killed,
         "forger_error": forger_error,
         "wall_s": round(time.perf_counter() - started_s, 2),
     }
@@ -295,9 +419,13 @@ def check_run(plan: dict, out: Path, result: dict) -> list[str]:
         reported = json.loads((out / "metrics.json").read_text())
         if bool(reported.get("converged")) != bool(metrics.get("converged")):
             violations.append("results: swarm report disagrees on converged")
-    expected_status = 0 if metrics.get("converged") and not metrics.get("incomplete") else 1
+    failures = (metrics.get("health") or {}).get("failures") or []
+    expected_status = 0 if metrics.get("converged") and not metrics.get("incomplete") and not failures else 1
     if result["status"] in (0, 1) and result["status"] != expected_status:
         violations.append(f"exit: status {result['status']} for converged={metrics.get('converged')}")
+
+    # 7. named: the summary names every fault that happened, and a death no fault scheduled fails
+    violations += _unnamed(plan, out, result, metrics, stats)
 
     # 4. live connected robots converge (a restarted agent that never came back before the run's end,
     # as the server saw it, leaves its robot standing while metrics counts it live: not judged then)
@@ -306,6 +434,7 @@ def check_run(plan: dict, out: Path, result: dict) -> list[str]:
     result["not_back"] = sorted(restarted - back)
     if (
         not result["not_back"]
+        and not result.get("killed")
         and not server_killed
         and metrics.get("graph_connected")
         and not metrics.get("converged")
@@ -331,7 +460,7 @@ def check_run(plan: dict, out: Path, result: dict) -> list[str]:
     if sorted(e["kind"] for e in events) != sorted(expected_events):
         violations.append(f"counts: events {[e['kind'] for e in events]}, expected {expected_events}")
     records = _records(out)
-    if not server_killed:
+    if not server_killed and not result.get("killed"):  # agents killed from outside: counts are gone
         totals = {
             name: sum(r.get("messages", {}).get(name, 0) for r in records.values())
             for name in ("dropped_by_fault", "lost_by_fault", "delayed_by_fault")
@@ -344,27 +473,100 @@ def check_run(plan: dict, out: Path, result: dict) -> list[str]:
         if "delay" in kinds and totals["delayed_by_fault"] == 0:
             violations.append("counts: a delay scheduled but no message counted delayed")
     sent = result["sent"]
-    if forge is not None and sent is not None and not process:
+    if forge is not None and sent is not None and not process and not result.get("killed"):
         neighbours = {
             i: [j for j in range(scenario["robots"]["count"]) if j != i and _adjacent(scenario, i, j)]
             for i in range(scenario["robots"]["count"])
         }
         if "pose" in sent and forge["pose"] not in touched:
-            got = records.get(forge["pose"], {}).get("poses", {}).get("future")
+            poses = records.get(forge["pose"], {}).get("poses", {})
+            got = poses.get("future", 0) + poses.get("unauthenticated", 0)  # the run key: unauthenticated
             if got != 1:
                 violations.append(f"counts: robot {forge['pose']} counted {got} future poses, 1 forged")
         if "msg" in sent:
             for i in [j for j in neighbours[forge["msg"]] if j not in touched]:
-                got = records.get(i, {}).get("messages", {}).get("future")
+                messages = records.get(i, {}).get("messages", {})
+                got = messages.get("future", 0) + messages.get("unauthenticated", 0)
                 if got != 1:
                     violations.append(
                         f"counts: robot {i} counted {got} future messages, 1 forged by {forge['msg']}"
                     )
-        if "cmd" in sent and stats.get("future_commands") != 1:
+        commands = stats.get("future_commands", 0) + stats.get("unauthenticated_commands", 0)
+        if "cmd" in sent and commands != 1:
             violations.append(
-                f"counts: the server counted {stats.get('future_commands')} future commands, 1 forged"
+                f"counts: the server counted {commands} future or unauthenticated commands, 1 forged"
             )
     return violations
+
+
+def _unnamed(plan: dict, out: Path, result: dict, metrics: dict, stats: dict) -> list[str]:
+    """Invariant 7: every process fault done is a ``fault:`` line of the printed summary; every agent the
+    server saw go without a fault is named (``died`` or ``away``, ``NOT scheduled``); a SIGKILL from
+    outside fails the run (exit 1) with the robots and the tick on stderr; forged or attacking samples
+    that reached a receiver show as ``samples rejected``; the summary says whether access control was on."""
+    out_violations = []
+    stdout, stderr = result["stdout"], result["stderr"]
+    if "access control: " not in stdout:
+        out_violations.append("named: the summary does not say whether access control was on")
+    events = []
+    with contextlib.suppress(OSError):
+        events = [
+            json.loads(line) for line in (out / "events.jsonl").read_text().splitlines() if line.strip()
+        ]
+    for event in events:
+        if event["kind"] == "resume_agent":
+            continue
+        who = "" if event.get("robot") is None else f" robot {event['robot']}"
+        if f"fault: {event['kind']}{who} at" not in stdout:
+            out_violations.append(f"named: the summary does not name {event['kind']}{who}")
+    touched = {e.get("robot") for e in events}
+    for event in stats.get("agent_events", []):
+        robot = event.get("robot")
+        if event.get("event") != "gone" or robot in touched:
+            continue
+        if not any(
+            f"{kind}: robot {robot}'s agent went at tick {event['tick']}" in stdout
+            for kind in ("died", "away")
+        ):
+            out_violations.append(
+                f"named: robot {robot}'s agent went at tick {event['tick']}, not in the summary"
+            )
+    killed = result.get("killed") or {}
+    kill = plan.get("outside_kill")
+    if killed.get("pid") is not None and kill is not None and not metrics.get("incomplete"):
+        robots = (
+            range(plan["scenario"]["robots"]["count"]) if kill["target"] == "launcher" else [kill["robot"]]
+        )
+        if result["status"] != 1 or "the run failed" not in stderr:
+            out_violations.append(f"named: an outside SIGKILL of the {kill['target']} did not fail the run")
+        # died; or froze, when a token outlives the process (the zombie attack holds one on its key)
+        died = {
+            i["robot"]: i
+            for i in (metrics.get("health") or {}).get("incidents", [])
+            if i["kind"] in ("died", "froze") and not i["scheduled"]
+        }
+        for robot in robots:
+            incident = died.get(robot)
+            if incident is None:
+                out_violations.append(
+                    f"named: robot {robot} killed from outside, not named as an unscheduled death"
+                )
+            elif (  # realtime: between two boundaries the server's tick is the last one on disk (-1)
+                incident["tick"] < killed["after_tick"] - 1
+                or f"robot {robot}'s agent {incident['kind']}" not in stderr
+            ):
+                out_violations.append(
+                    f"named: robot {robot}'s death at tick {incident['tick']} misdated or not on stderr"
+                )
+    attacked = result.get("attacked") or {}
+    forged = bool(result.get("sent")) or (attacked.get("sent", 0) > 0 and attacked.get("kind") != "zombie")
+    rejected = (metrics.get("health") or {}).get("samples", {}).get("rejected", {})
+    any_rejected = any(
+        count for streams in rejected.values() if isinstance(streams, dict) for count in streams.values()
+    )
+    if forged and any_rejected and "samples rejected: " not in stdout:
+        out_violations.append("named: samples were rejected but the summary does not say so")
+    return out_violations
 
 
 def _adjacent(scenario: dict, i: int, j: int) -> bool:
@@ -376,13 +578,18 @@ def soak_one(plan: dict, work: Path) -> dict:
     out = work / f"run-{plan['seed']}"
     scenario_path = work / f"chaos-{plan['seed']}.yaml"
     scenario_path.write_text(yaml.safe_dump(plan["scenario"], sort_keys=False))
-    result = _swarm_run(scenario_path, out, plan["forge"])
+    robots = plan["scenario"]["robots"]["count"]
+    result = _swarm_run(
+        scenario_path, out, plan["forge"], plan.get("attack"), plan.get("outside_kill"), robots
+    )
     violations = check_run(plan, out, result)
     faults = plan["scenario"].get("faults", [])
     replayed = None
     only_links = all(f["kind"] not in PROCESS_FAULTS for f in faults)
     unplanned = _unplanned_disconnects(out, faults)
-    if plan["scenario"]["sim"]["mode"] == "lockstep" and only_links and not violations and not unplanned:
+    outsiders = plan.get("outside_kill") is not None or (plan.get("attack") or {}).get("kind") == "zombie"
+    lockstep = plan["scenario"]["sim"]["mode"] == "lockstep"
+    if lockstep and only_links and not outsiders and not violations and not unplanned:
         replay_out = work / f"replay-{plan['seed']}"
         replay = _swarm_run(scenario_path, replay_out, None)
         unplanned = _unplanned_disconnects(replay_out, faults)
@@ -403,6 +610,10 @@ def soak_one(plan: dict, work: Path) -> dict:
         "mode": plan["scenario"]["sim"]["mode"],
         "faults": faults,
         "forge": plan["forge"],
+        "attack": plan.get("attack"),
+        "attack_sent": (result.get("attacked") or {}).get("sent"),
+        "outside_kill": plan.get("outside_kill"),
+        "killed_after_tick": (result.get("killed") or {}).get("after_tick"),
         "forged_sent": sorted(result["sent"] or []),
         "forger_error": result["forger_error"],
         "restarted_not_back": result.get("not_back", []),
@@ -435,6 +646,8 @@ def summary(entries: list[dict]) -> dict:
         "faults_by_kind": dict(sorted(kinds.items())),
         "runs_without_fault": sum(not e["kinds"] for e in entries),
         "forged_samples_sent": sum(len(e["forged_sent"]) for e in entries),
+        "attack_samples_sent": sum(e.get("attack_sent") or 0 for e in entries),
+        "outside_kills_done": sum(e.get("killed_after_tick") is not None for e in entries),
         "forger_failed": sum(bool(e.get("forger_error")) for e in entries),
         "restarted_not_back": sum(bool(e.get("restarted_not_back")) for e in entries),
         "unplanned_disconnects": sum(bool(e.get("unplanned_disconnects")) for e in entries),
@@ -476,6 +689,8 @@ def write_report(entries: list[dict], args: argparse.Namespace, started: str) ->
         f"| runs without any fault | {figures['runs_without_fault']} |",
         *(f"| runs with `{kind}` | {count} |" for kind, count in figures["faults_by_kind"].items()),
         f"| forged samples sent (pose, message, command) | {figures['forged_samples_sent']} |",
+        f"| attack samples sent (tests/outside.py attack) | {figures['attack_samples_sent']} |",
+        f"| SIGKILLs from outside done (agent or launcher) | {figures['outside_kills_done']} |",
         f"| runs whose forger could not connect (its counts not checked) | {figures['forger_failed']} |",
         "| runs where the router dropped an agent's session that no fault touched (no replay compared) |"
         f" {figures['unplanned_disconnects']} |",

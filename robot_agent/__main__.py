@@ -31,7 +31,7 @@ import zenoh
 
 from robot_agent.agent import EXIT_FAILED, AgentOptions, RobotAgent
 from swarm.core.exit_codes import ExitCode
-from swarm.runtime import acl, wire
+from swarm.runtime import acl, tls, wire
 from swarm.runtime.procs import die_with_parent
 from swarm.runtime.usage import OneLineArgumentParser, configure_logging, one_line
 
@@ -99,6 +99,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--user", help="Zenoh user name (sim.acl; default with --password: robot-<i>)")
     parser.add_argument("--password", help="Zenoh password (sim.acl; prefer --credentials: not in ps)")
+    parser.add_argument(
+        "--tls", help="directory with the run's ca.pem and this robot's robot-<i>.{pem,key} (tls/ endpoints)"
+    )
     parser.add_argument("--log-dir", help="write agent_<i>.json (and agent_<i>.log with --robots) here")
     parser.add_argument("--die-with-parent", action="store_true", help="exit when the parent process dies")
     parser.add_argument(
@@ -120,6 +123,8 @@ def zenoh_settings(robot: int, args: argparse.Namespace) -> dict:
         settings.update(acl.client_settings(*acl.read_credentials(args.credentials, robot)))
     elif args.password is not None:
         settings.update(acl.client_settings(args.user or acl.user_of(robot), args.password))
+    if args.tls:  # swarm.runtime.tls.TlsError (a ValueError) when a file is missing
+        settings.update(tls.client_settings(args.tls, robot))
     return settings
 
 
@@ -177,6 +182,11 @@ def _exit_reason(args: argparse.Namespace, robot: int | None) -> str:
     return f": {describe_failure(record, args)}" if record.get("exit_reason") else ""
 
 
+EXITS_FILE = "launcher_exits.jsonl"
+"""In ``--log-dir``: one line per forked agent that ended, ``{"robot", "pid", "exit_status"}`` (a negative
+status: killed by that signal)."""
+
+
 def launch(robots: list[int], args: argparse.Namespace, settings: dict[int, dict]) -> int:
     """Fork one agent process per robot and wait for them; SIGTERM/SIGINT are passed on."""
     children: dict[int, int] = {}
@@ -217,6 +227,9 @@ def launch(robots: list[int], args: argparse.Namespace, settings: dict[int, dict
             continue
         child: int | None = children.pop(pid, None)
         code = os.waitstatus_to_exitcode(status)
+        if args.log_dir:  # every exit the launcher saw, for the run's health (swarm.runtime.health)
+            with open(Path(args.log_dir) / EXITS_FILE, "a") as exits:
+                exits.write(json.dumps({"robot": child, "pid": pid, "exit_status": code}) + "\n")
         if code != 0:
             why = _exit_reason(args, child)
             print(

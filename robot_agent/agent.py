@@ -770,6 +770,7 @@ class RobotAgent:
                 "unread": pose_inlet.unread if pose_inlet is not None else 0,  # came after the last tick
                 "skipped": counters.poses_skipped + window.confirmed,
                 "jumps": window.confirmed,  # beyond the window, confirmed by the next pose: followed
+                "jump_ticks": list(window.jump_ticks),  # the ticks it jumped to (the first ones)
                 "recovered": window.recovered,  # old poses taken as the clock again (swarm.runtime.ticks)
             },
             messages={

@@ -9,7 +9,9 @@ stderr: a scenario that does not load, an endpoint that cannot be listened on, .
 
 A scenario with ``sim.acl: true`` needs ``--users FILE``: the agents' ``user:password`` lines
 (``python -m swarm.runtime.acl credentials``); the router then admits only those users, each to its own
-neighbourhood of the graph (``swarm.runtime.acl``).
+neighbourhood of the graph (``swarm.runtime.acl``). ``sim.acl`` unset: access control is on with
+``--users`` and off without (``server_stats.json`` says which); ``sim.acl: false``: off, and
+``--users`` is bad input.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from pathlib import Path
 
 import zenoh
 
-from swarm.runtime import acl, wire
+from swarm.runtime import acl, tls, wire
 from swarm.runtime.procs import die_with_parent
 from swarm.runtime.usage import (
     EXIT_BAD_INPUT,
@@ -55,6 +57,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--model", help="policy file for controller gnn (default: the scenario's)")
     parser.add_argument("--lease-ms", type=int, default=1000, help="Zenoh lease (default 1000 ms)")
+    parser.add_argument(
+        "--tls",
+        help="directory of the run's TLS certificates (python -m swarm.runtime.tls certificates): listen on"
+        " tls/HOST:PORT with mutual TLS",
+    )
     parser.add_argument(
         "--users",
         help="sim.acl: file of the agents' user:password lines (python -m swarm.runtime.acl credentials)",
@@ -113,10 +120,14 @@ def main(argv: list[str] | None = None) -> int:
         if scenario.controller.kind == "gnn":
             policy = resolve_model_path(model, Path(args.scenario)).read_bytes()
         settings = {}
-        if scenario.sim.acl:
+        if scenario.sim.acl or (scenario.sim.acl is None and args.users):  # unset: on with --users
             settings = acl_settings(scenario, args)
         elif args.users:
-            raise ValueError(f"--users is for scenarios with sim.acl: true, and {args.scenario} has not")
+            raise ValueError(
+                f"--users is for scenarios with access control, and {args.scenario} sets sim.acl: false"
+            )
+        if args.tls:
+            settings = {**settings, **tls.router_settings(args.tls)}  # TlsError is a ValueError
         if args.admin_space:
             settings = {**settings, **ADMIN_SPACE}
         run_key = wire.RunKey.from_env()  # ValueError (bad input) when SWARM_RUN_KEY is not a key

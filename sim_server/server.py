@@ -54,6 +54,7 @@ import zenoh
 
 from sim_server.physics import PhysicsWorld
 from swarm.core.exit_codes import ExitCode
+from swarm.core.faults import tick_of
 from swarm.core.robot import saturate_wheels
 from swarm.runtime import wire
 from swarm.scenarios.results import TrajectoryWriter, prepare_results_dir
@@ -77,6 +78,13 @@ HUNG_AFTER_DEADLINES = 3
 *hung*: the server stops waiting for it (its robot keeps its last command for ``sim.watchdog_s``,
 then stops) until a command of it comes again; both are agent events (``hung``, ``answering``) in
 ``server_stats.json``."""
+
+SILENT_SPAN_MIN_TICKS = HUNG_AFTER_DEADLINES
+"""A run of at least this many ticks in a row without a command of a robot is kept in ``silent_spans``
+of ``server_stats.json`` (robot, first tick, length; ``to_end``: still silent when the run ended), which
+``swarm.runtime.health`` judges (an agent that froze or died). At most ``SILENT_SPANS_KEPT`` are kept."""
+
+SILENT_SPANS_KEPT = 1000
 
 STATS_EVERY_S = 1.0
 """While the run goes on, ``server_stats.json`` is rewritten (atomically) at the first tick and then
@@ -199,16 +207,27 @@ class SimServer:
         self._timing = {"publish": [0.0, 0.0], "trajectory": [0.0, 0.0]}  # part -> [wall s, CPU s]
         self._newest_cmd_tick: dict[int, int] = {}  # robot -> tick of the newest command accepted
         self._stats_written_s = -math.inf  # written at the first tick: a server killed early leaves it too
+        self._back_ticks: dict[int, list[int]] = {}  # robot -> ticks of its "back" events (a new token)
+        self._restart_ticks: dict[int, list[int]] = {}  # lockstep: robot -> ticks of its restart_agent faults
+        for fault in scenario.faults:
+            if fault.kind == "restart_agent" and fault.robot is not None:
+                self._restart_ticks.setdefault(fault.robot, []).append(tick_of(fault.at_s or 0.0, self.dt_s))
+        self._restarts_given_up = np.zeros(self.count, dtype=int)
+        self._silent_from = np.full(self.count, -1)  # first tick of a robot's current run without a command
+        self._ticks_tracked = 0  # ticks given to _track_silence
         self.stats: dict[str, Any] = {
             "authentication": "run key" if key is not None else "off",
+            "access_control": "transport/auth/usrpwd" in options.zenoh_settings,  # swarm.runtime.acl
             "invalid_commands": 0,
             "unauthenticated_commands": 0,
             "late_commands": 0,
             "future_commands": 0,
             "old_commands": 0,
             "callback_errors": 0,
+            "accepted_commands": 0,
             "config_queries": 0,
             "agent_events": [],
+            "silent_spans": [],
         }
 
     # ------------------------------------------------------------------ callbacks (zenoh threads)
@@ -242,6 +261,7 @@ class SimServer:
                 return
             self._cmds[robot] = (cmd, now_s)
             self._newest_cmd_tick[robot] = cmd.tick
+            self.stats["accepted_commands"] += 1
             if cmd.tick == self._tick:
                 self._fresh.add(robot)
                 if self._all_fresh():  # wake the main thread once per tick, not once per command
@@ -259,6 +279,8 @@ class SimServer:
         with self._cond:
             if sample.kind == zenoh.SampleKind.PUT:
                 event = "back" if robot in self._seen else "alive"
+                if event == "back":
+                    self._back_ticks.setdefault(robot, []).append(self._tick)
                 self._alive.add(robot)
                 self._seen.add(robot)
             else:
@@ -427,14 +449,20 @@ class SimServer:
         served, latencies_s, missed_by_robot = 0, [], np.zeros(self.count, dtype=int)
         physics_s, physics_cpu_s = 0.0, 0.0
         start_s = time.perf_counter()
+        tick_walls_s: list[float] = []  # publish to publish: the median is the expected tick (health)
+        tick_started_s = start_s
         with self._trajectory() as trajectory:
             for tick in range(steps + 1):
                 poses = world.poses()
+                if tick:
+                    tick_walls_s.append(time.perf_counter() - tick_started_s)
+                tick_started_s = time.perf_counter()
                 if tick == steps:
                     trajectory.write(tick, tick * self.dt_s, poses)
                     break
                 if self._stop:
                     return EXIT_INTERRUPTED
+                self._wait_for_restarted(tick)
                 self._publish(publishers, tick, poses)
                 deadline_s = self._published_at_s[tick] + sim.deadline_s
                 with self._cond:
@@ -455,6 +483,7 @@ class SimServer:
                         missed_by_robot[i] += 1
                 self._count_hung(cmds, alive)
                 self._count_robot_ticks(cmds, alive)
+                self._track_silence(tick, set(cmds))
                 del self._published_at_s[tick]
                 step_wall_s, step_cpu_s = self._apply_and_step(world, trajectory, tick, poses, wheels)
                 physics_s += step_wall_s
@@ -465,6 +494,7 @@ class SimServer:
             ticks_served=served,
             ticks_missed=steps - served,
             missed_commands_by_robot=missed_by_robot.tolist(),
+            tick_wall_ms=_percentiles_ms(tick_walls_s),
             latency_ms=_percentiles_ms(latencies_s),
             latency_histogram_ms=_latency_histogram_ms(latencies_s),
             physics_ms_per_tick=1e3 * physics_s / max(steps, 1),
@@ -510,8 +540,10 @@ class SimServer:
                     return EXIT_INTERRUPTED
                 now_s = time.perf_counter()
                 fresh, slowest = 0, 0.0
+                commanded = set()  # a command newer than the one applied came
                 for i in range(self.count):
                     if i in cmds and cmds[i][0].tick > applied_tick[i]:
+                        commanded.add(i)
                         command, arrived_s = cmds[i]
                         wheels[i] = (command.left_mps, command.right_mps)
                         applied_tick[i] = command.tick
@@ -529,6 +561,7 @@ class SimServer:
                 if fresh >= len(alive):
                     slowest_s.append(slowest)
                 self._count_robot_ticks({i: c for i, c in cmds.items() if c[0].tick == tick}, alive)
+                self._track_silence(tick, commanded)
                 self._published_at_s.pop(tick - 20, None)
                 step_wall_s, step_cpu_s = self._apply_and_step(world, trajectory, tick, poses, wheels)
                 physics_s += step_wall_s
@@ -553,6 +586,28 @@ class SimServer:
         )
         return EXIT_DONE
 
+    def _wait_for_restarted(self, tick: int) -> None:
+        """lockstep: before publishing ``tick``, wait for every agent that a ``restart_agent`` fault due
+        by now has killed and whose new process's token is not up yet (the runner kills the old agent
+        once the server is on the fault's tick, then starts the new one, whose start-up takes seconds
+        of wall time: without this wait a short run could end before the new agent ever drove its
+        robot). Waits at most ``startup_timeout_s`` per restart, then goes on without it (the run's
+        health then names the restart that never came back); ``restart_waits`` in the stats."""
+        for robot, ticks in self._restart_ticks.items():
+            due = [t for t in ticks if t <= tick]
+            with self._cond:
+                backs = sum(t >= due[0] for t in self._back_ticks.get(robot, [])) if due else 0
+                if robot in self._alive or backs + self._restarts_given_up[robot] >= len(due):
+                    continue  # none due, the old agent not killed yet, or the new one is up
+                start_s = time.perf_counter()
+                back = self._wait(lambda r=robot: r in self._alive, start_s + self.options.startup_timeout_s)
+                if not back and not self._stop:
+                    self._restarts_given_up[robot] += 1
+                waited_s = round(time.perf_counter() - start_s, 4)
+                self.stats.setdefault("restart_waits", []).append(
+                    {"robot": robot, "tick": tick, "wall_s": waited_s, "back": back}
+                )
+
     def _count_hung(self, cmds: dict, alive: set[int]) -> None:
         """lockstep: a live agent whose command missed ``HUNG_AFTER_DEADLINES`` deadlines in a row is
         hung (not waited for) until it answers again (:meth:`_on_cmd`)."""
@@ -572,6 +627,33 @@ class SimServer:
         for i in range(self.count):
             self._ticks_without_command[i] += i not in cmds
             self._ticks_dead[i] += i not in alive
+
+    def _track_silence(self, tick: int, commanded: set[int]) -> None:
+        """Runs of ticks in a row without a command of a robot (``silent_spans``, lock held inside)."""
+        with self._cond:
+            for i in range(self.count):
+                start = int(self._silent_from[i])
+                if i in commanded:
+                    if start >= 0:
+                        self._silent_from[i] = -1
+                        self._keep_silent_span(i, start, tick - start, to_end=False)
+                elif start < 0:
+                    self._silent_from[i] = tick
+            self._ticks_tracked = tick + 1
+
+    def _keep_silent_span(self, robot: int, start: int, ticks: int, to_end: bool) -> None:
+        spans = self.stats["silent_spans"]
+        if ticks >= SILENT_SPAN_MIN_TICKS and len(spans) < SILENT_SPANS_KEPT:
+            spans.append({"robot": robot, "from_tick": start, "ticks": ticks, "to_end": to_end})
+
+    def _open_silent_spans(self) -> list[dict]:
+        """The runs without a command that go on at the last tick tracked (lock held)."""
+        end = self._ticks_tracked
+        return [
+            {"robot": i, "from_tick": int(start), "ticks": end - int(start), "to_end": True}
+            for i, start in enumerate(self._silent_from)
+            if start >= 0 and end - start >= SILENT_SPAN_MIN_TICKS
+        ]
 
     def _write_stats_now_and_then(self, tick: int) -> None:
         if time.perf_counter() >= self._stats_written_s + STATS_EVERY_S:
@@ -615,6 +697,7 @@ class SimServer:
         }
         with self._cond:  # the Zenoh threads append agent events
             stats.update(self.stats, agent_events=list(self.stats["agent_events"]))
+            stats["silent_spans"] = [*self.stats["silent_spans"], *self._open_silent_spans()]
         stats["per_robot"] = self._per_robot()
         path = self.options.out_dir / "server_stats.json"
         temporary = path.with_suffix(".json.tmp")

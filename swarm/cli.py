@@ -155,6 +155,15 @@ def cmd_run(args: argparse.Namespace) -> int:
     if outcome.get("incomplete"):  # e.g. a kill_server fault ended the run early
         print(f"swarm run: run incomplete: {outcome['incomplete']}", file=sys.stderr)
         return EXIT_NOT_MET
+    return _health_or(outcome, "swarm run")
+
+
+def _health_or(outcome: dict, prog: str) -> int:
+    """Exit 1 with the reasons when the run's health failed (swarm.runtime.health), else by convergence."""
+    failures = (outcome.get("health") or {}).get("failures")
+    if failures:
+        print(f"{prog}: the run failed: {'; '.join(failures)}", file=sys.stderr)
+        return EXIT_NOT_MET
     return EXIT_SUCCESS if outcome["converged"] else EXIT_NOT_MET
 
 
@@ -168,7 +177,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     if outcome.get("incomplete"):
         print(f"swarm report: run incomplete: {outcome['incomplete']}", file=sys.stderr)
         return EXIT_NOT_MET
-    return EXIT_SUCCESS if outcome["converged"] else EXIT_NOT_MET
+    return _health_or(outcome, "swarm report")
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:

@@ -53,6 +53,7 @@ def files(tmp_path_factory) -> dict[str, Path]:
         "bad_key_config": "bogus_key: 1\n",
         "not_a_policy": "this is not an npz file\n",
         "credentials": "robot-0:secret\n",
+        "open_scenario": SCENARIO.read_text().replace("sim: {", "sim: {acl: false, ", 1),
     }
     paths = {name: root / name for name in contents}
     for name, text in contents.items():
@@ -249,7 +250,8 @@ def test_sim_server_on_a_port_in_use(sim_of_three, tmp_path, _run_key):
         (["--scenario", str(SCENARIO), "--listen", "nonsense"], "Endpoints must be of the form"),
         (["--scenario", str(ACL_SCENARIO)], "sets sim.acl: give --users FILE"),
         (["--scenario", str(ACL_SCENARIO), "--users", "{missing}"], "no such users file"),
-        (["--scenario", str(SCENARIO), "--users", "{credentials}"], "--users is for scenarios with sim.acl"),
+        (["--scenario", str(SCENARIO), "--tls", "{missing}"], "ca.pem: no such file"),
+        (["--scenario", "{open_scenario}", "--users", "{credentials}"], "sets sim.acl: false"),
         (["--scenario", str(SCENARIO), "--out", "/proc/no/such/dir"], "/proc/no"),
         (["--scenario", str(SCENARIO)], "the following arguments are required: --out"),
     ],

@@ -75,10 +75,6 @@ def test_centralized_mec_runs_as_one_central_process_with_the_batched_commands(t
         np.testing.assert_allclose(wheels, expected, rtol=0, atol=1e-9, err_msg=f"tick {tick}")
 
 
-@pytest.mark.xfail(
-    strict=False,
-    reason="issue 19: a restarted agent can be stopped before its first tick (the restart race)",
-)
 def test_a_restarted_mec_flood_agent_starts_afresh_and_the_swarm_still_gathers(tmp_path):
     """Robot 0's agent is killed at 1 s and a fresh process started: it remembers nothing, holds
     still until it hears a neighbour, and its neighbours flood the support points back."""

@@ -198,3 +198,110 @@ def test_a_network_partition_mid_run_is_survived_on_both_sides(two_hosts, tmp_pa
         assert records[far]["exit_reason"] == "sim gone" and records[far]["ticks"] < steps
     for near in (4, 5):  # 4 hears 3, 5 hears 0: their messages stopped during the cut
         assert records[near]["sim_lost"] == 1 and records[near]["messages"]["lost"] > 0
+
+
+OUTSIDER = """
+import json, sys, time, zenoh
+config = zenoh.Config()
+config.insert_json5("mode", '"client"')
+config.insert_json5("connect/endpoints", json.dumps([sys.argv[1]]))
+config.insert_json5("scouting/multicast/enabled", "false")
+config.insert_json5("transport/unicast/open_timeout", "3000")
+for path, value in json.loads(sys.argv[2]).items():
+    config.insert_json5(path, json.dumps(value))
+give_up_s = time.monotonic() + 15.0  # the server may not listen yet
+while True:
+    try:
+        zenoh.open(config).close()
+        sys.exit(0)
+    except zenoh.ZError:
+        if time.monotonic() > give_up_s:
+            sys.exit(3)
+        time.sleep(0.5)
+"""
+"""An outside client (plain zenoh, no project code): exit 0 connected, 3 refused for 15 s."""
+
+
+def test_a_tls_run_across_hosts_admits_only_agents_with_the_runs_certificates(two_hosts, tmp_path):
+    """The documented multi-host path: a per-run CA (``swarm.runtime.tls``), mutual TLS, access control
+    and the run key. The sim server listens only on ``tls/``; the four far agents connect over the veth
+    link with their own certificate and credentials, two beside the server over loopback TLS. The run
+    completes and gathers. From the robot host, clients that hold the robot's password but no client
+    certificate, or a certificate of another CA, are refused; one with a robot's certificate connects."""
+    import os
+
+    from swarm.runtime import acl, tls
+
+    hosts = two_hosts
+    data = yaml.safe_load((PROJECT_ROOT / "scenarios" / "thesis" / "cycle-local_consensus.yaml").read_text())
+    data["sim"].update(duration=30.0, acl=True)  # room for the outsider that connects while it runs
+    scenario_path = tmp_path / "scenario.yaml"
+    scenario_path.write_text(yaml.safe_dump(data))
+    scenario = load_scenario(scenario_path)
+    certificates = tls.write_tls(tmp_path / "tls", 6, [SIM_ADDRESS, "127.0.0.1"])
+    users, per_robot = acl.write_credentials(tmp_path / "credentials", 6)
+    env = dict(os.environ, **{wire.RUN_KEY_ENV: wire.new_run_key()})
+    out, logs = tmp_path / "results", tmp_path / "results" / "logs"
+    logs.mkdir(parents=True)
+    secured = ("--tls", str(certificates))
+    processes = Processes(hosts, tmp_path, cwd=PROJECT_ROOT)
+    try:
+        server = processes.start(
+            "sim_server",
+            "sim",
+            *("-m", "sim_server", "--scenario", str(scenario_path), "--out", str(out), "--run", "tls"),
+            *("--listen", f"tls/0.0.0.0:{PORT}", "--users", str(users), *secured),
+            env=env,
+        )
+        remote, local = f"tls/{SIM_ADDRESS}:{PORT}", f"tls/127.0.0.1:{PORT}"
+        agent = ("-m", "robot_agent", "--credentials", per_robot, "--log-dir", str(logs), *secured)
+        agents = [
+            processes.start(f"agent_{i}", "robots", *agent, "--robot", str(i), "--connect", remote, env=env)
+            for i in range(4)
+        ]
+        agents.append(
+            processes.start("agents_4_5", "sim", *agent, "--robots", "4-5", "--connect", local, env=env)
+        )
+        password_only = {
+            **acl.client_settings(*acl.read_credentials(per_robot, 0)),
+            "transport/link/tls/root_ca_certificate": str(certificates / tls.CA_FILE),
+        }
+        other_ca = tls.write_tls(tmp_path / "other", 1, [SIM_ADDRESS])
+        tries = {
+            "no_certificate": password_only,
+            "other_ca": {**password_only, **tls.client_settings(other_ca, 0)},
+            "robot_certificate": {**password_only, **tls.client_settings(certificates, 0)},
+            "plain_tcp": {},
+        }
+        outsiders = {
+            name: processes.start(
+                f"outsider_{name}",
+                "robots",
+                "-c",
+                OUTSIDER,
+                remote if name != "plain_tcp" else f"tcp/{SIM_ADDRESS}:{PORT}",
+                json.dumps(settings),
+            )
+            for name, settings in tries.items()
+        }
+        try:
+            refused = {name: process.wait(timeout=TIMEOUT_S) for name, process in outsiders.items()}
+            server_code = server.wait(timeout=TIMEOUT_S)
+            agent_codes = [agent.wait(timeout=15) for agent in agents]
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"the run did not end: {processes.log('sim_server')}")
+    finally:
+        processes.stop()
+
+    assert refused == {"no_certificate": 3, "other_ca": 3, "robot_certificate": 0, "plain_tcp": 3}, refused
+    assert server_code == 0, processes.log("sim_server")
+    assert agent_codes == [0] * 5, [processes.log(name) for name in processes.started]
+    stats = json.loads((out / "server_stats.json").read_text())
+    assert stats["exit"] == "done" and stats["ticks_served"] == scenario.steps
+    assert stats["access_control"] is True and stats["authentication"] == "run key"
+    times_s, poses, _ = read_trajectory(out / "trajectory.jsonl")
+    outcome = summarize(scenario, times_s, poses, scenario.adjacency())
+    assert len(times_s) == scenario.steps + 1 and outcome["converged"], outcome["final_metric"]
+    records = {i: json.loads((logs / f"agent_{i}.json").read_text()) for i in range(6)}
+    assert all(record["ticks"] == scenario.steps for record in records.values())
+    assert [records[i]["connect"] for i in range(6)] == [[remote]] * 4 + [[local]] * 2

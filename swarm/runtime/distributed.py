@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import os
 import signal
 import subprocess
@@ -33,10 +34,10 @@ from pathlib import Path
 import numpy as np
 
 from swarm.core.faults import PROCESS_FAULTS
-from swarm.runtime import wire
+from swarm.runtime import health, wire
 from swarm.runtime.acl import write_credentials
 from swarm.runtime.procs import Supervisor, free_tcp_port
-from swarm.scenarios.fault_results import add_fault_results
+from swarm.scenarios.fault_results import add_fault_results, read_events
 from swarm.scenarios.report import write_pictures
 from swarm.scenarios.results import (
     prepare_results_dir,
@@ -46,6 +47,8 @@ from swarm.scenarios.results import (
     write_partial_results,
 )
 from swarm.scenarios.scenario import Scenario, ScenarioError, parse_scenario, resolve_model_path
+
+log = logging.getLogger(__name__)
 
 AGENTS_EXIT_GRACE_S = 5.0
 """How long the agents get to notice that the sim has gone and exit by themselves (plus
@@ -350,12 +353,22 @@ def _run_distributed(
         data = scenario.model_dump(mode="json")
         data["controller"]["model"] = str(model)  # the server reads the copy in the results directory
         scenario = parse_scenario(data)
+    if scenario.sim.acl is None:  # the default: access control on where the run can have it
+        data = scenario.model_dump(mode="json")
+        data["sim"]["acl"] = scenario.access_control
+        scenario = parse_scenario(data)
+    elif not scenario.sim.acl:
+        log.warning(
+            "swarm run: warning: sim.acl: false: access control is OFF; anyone who reaches the run's"
+            " port can join it and publish on any key (docs/distributed-runtime.md)"
+        )
     out_dir = Path(out_dir)
     prepare_results_dir(out_dir, scenario)
     logs = out_dir / "logs"
     stale = [
         out_dir / name for name in ("trajectory.jsonl", "server_stats.json", "metrics.json", "events.jsonl")
     ]
+    stale.append(logs / "launcher_exits.jsonl")  # robot_agent.__main__.EXITS_FILE
     for path in [*stale, *logs.glob("agent_*.json"), *logs.glob("replaced/agent_*.json")]:
         path.unlink(missing_ok=True)
     run_id = _run_id(scenario.name)
@@ -406,10 +419,10 @@ def _run_distributed(
                 if done and first_tick_s is None:
                     first_tick_s = time.perf_counter() - started_s
                 if not done and controllers.poll() is not None:
-                    log = logs / f"{controller_name}.log"
+                    log_path = logs / f"{controller_name}.log"
                     raise RunFailed(
                         f"the {controller_name} process exited with status {controllers.returncode} before"
-                        f" the first tick: {_tail(log)} (logs in {logs})"
+                        f" the first tick: {_tail(log_path)} (logs in {logs})"
                     )
                 if done:
                     faults.step(done)
@@ -469,6 +482,22 @@ def _run_distributed(
         outcome["runtime"]["agents_ready_s"] = round(stats["agents_ready_unix_s"] - started_unix_s, 3)
     if scenario.faults:  # judged on the live robots and graph at the end (swarm.scenarios.fault_results)
         add_fault_results(outcome, scenario, out_dir, records, times_s, poses)
+    outcome["health"] = health.health(
+        stats=stats,
+        records=records,
+        events=read_events(out_dir / "events.jsonl"),
+        launcher_exits=health.read_jsonl(logs / "launcher_exits.jsonl"),
+        never_back=(outcome.get("faults") or {}).get("agents_restarted_never_back", []),
+        controller=controller_name,
+        controller_status=agents_exit,
+        rejected=outcome["runtime"]["rejected"],
+        mode=scenario.sim.mode,
+        control_period_s=scenario.sim.control_period_s,
+        access_control=scenario.access_control,
+        access_control_off_why=(
+            "sim.acl: false" if scenario.sim.acl is False else scenario.access_control_unavailable()
+        ),
+    )
     write_metrics(out_dir, outcome)
     write_pictures(out_dir, scenario, times_s, poses, outcome)
     return outcome
@@ -500,7 +529,7 @@ def runtime_summary(
         "messages_invalid": int(np.sum([m.get("invalid", 0) for m in messages])),
         "invalid_commands": stats.get("invalid_commands"),
         "rejected": rejected_counts(stats, records),
-        "access_control": scenario.sim.acl,
+        "access_control": scenario.access_control,
         "agent_exit_reasons": sorted({str(record.get("exit_reason")) for record in records.values()}),
     }
 

@@ -56,6 +56,9 @@ def step_s_of(sim: dict) -> float:
     return min(float(sim.get("deadline_s", 1.0)), period_s)
 
 
+JUMP_TICKS_KEPT = 100
+"""How many of the ticks an agent's clock jumped to (``PoseWindow.jump_ticks``) its record keeps."""
+
 ACCEPT, OLD, FUTURE, CANDIDATE = "accept", "old", "future", "candidate"
 
 
@@ -77,6 +80,7 @@ class PoseWindow:
         "candidate_at_s",
         "confirmed",
         "future",
+        "jump_ticks",
         "old_run",
         "old_tick",
         "recovered",
@@ -92,6 +96,7 @@ class PoseWindow:
         self.candidate_at_s = 0.0
         self.future = 0
         self.confirmed = 0  # candidates a later pose confirmed: genuine, counted as received
+        self.jump_ticks: list[int] = []  # the first JUMP_TICKS_KEPT confirmed candidates: clock jumps
         self.recovered = 0  # times RECOVER_AFTER consecutive old poses became the clock again
         self.old_tick = -1  # the tick of the last old pose, and how many in a row came one tick apart
         self.old_run = 0
@@ -121,6 +126,8 @@ class PoseWindow:
             if candidate is not None:  # confirmed (an earlier tick: genuine) or superseded
                 if candidate < tick:
                     self.confirmed += 1
+                    if len(self.jump_ticks) < JUMP_TICKS_KEPT:
+                        self.jump_ticks.append(candidate)
                 else:
                     self.future += 1
             self.candidate = None

@@ -206,6 +206,7 @@ def summary_lines(outcome: dict, out_dir: Path | str) -> list[str]:
             lines.append(f"    robots {component['robots']}: {state}")
     if faults:
         lines += ["  " + line for line in fault_lines(faults)]
+    lines += ["  " + line for line in (outcome.get("health") or {}).get("lines", [])]  # swarm.runtime.health
     lines.append(f"  results: {out_dir}")
     return lines
 

@@ -202,12 +202,14 @@ class SimSpec(_Strict):
         " many ticks (None: 1 in lockstep, only the message of tick k-1-delay; 10 in realtime); see"
         " swarm/core/faults.py",
     )
-    acl: bool = Field(
-        False,
+    acl: bool | None = Field(
+        None,
         description="pybullet engine: enforce the decentralization with Zenoh access control"
         " (swarm/runtime/acl.py): the sim server's router admits only agents with the run's credentials,"
         " each to its own pose,"
-        " command and token and its graph neighbours' messages and tokens",
+        " command and token and its graph neighbours' messages and tokens. Unset (the default): on in"
+        " every run swarm run starts where it can be (a fixed graph, one process per robot: see"
+        " Scenario.access_control_unavailable); false: off, an explicit opt-in that swarm run warns about",
     )
 
 
@@ -363,6 +365,21 @@ class Scenario(_Strict):
         if self.sim.acl and self.topology.proximity:
             raise KeyedError(("sim", "acl"), "access control needs a fixed graph, not a disk topology")
         return self
+
+    def access_control_unavailable(self) -> str | None:
+        """Why this run cannot have per-robot access control (None: it can)."""
+        if self.controller.central:
+            return f"controller '{self.controller.kind}' needs every pose"
+        if self.topology.proximity:
+            return "a disk topology has no fixed graph"
+        return None
+
+    @property
+    def access_control(self) -> bool:
+        """``sim.acl`` resolved: unset means on where it is available."""
+        if self.sim.acl is None:
+            return self.access_control_unavailable() is None
+        return self.sim.acl
 
     def _check_faults(self) -> None:
         """Faults name robots of this run and edges of its graph; a restore follows a drop. (Process
