@@ -105,6 +105,17 @@ def _results_dir(args: argparse.Namespace, name: str) -> Path:
     return out_dir
 
 
+def _check_out_dir(option: str, path: str | None) -> None:
+    """Refuse, before any work, an output directory that cannot be one (a file is in the way)."""
+    if path is None:
+        return
+    for where in (Path(path), *Path(path).parents):
+        if where.exists():
+            if not where.is_dir():
+                raise UsageError(f"{option} {path}: {where} exists and is not a directory")
+            return
+
+
 def _write_recordings(out_dir: Path, formats: list[str] | None) -> None:
     """The recordings asked for with ``--record`` (``swarm.scenarios.recording``), from the results
     on disk."""
@@ -196,6 +207,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         "packet_loss": args.packet_loss,
     }
     config = config.with_overrides({key: value for key, value in overrides.items() if value is not None})
+    _check_out_dir("--out", args.out)
     out_dir = Path(args.out)
     rows = run_sweep(config, out_dir, progress=not args.quiet)
     failed = [row for row in rows if row["success_rate"] < 1.0]
@@ -212,18 +224,15 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from swarm.scenarios.evaluate import EvaluateConfig, evaluate
     from swarm.scenarios.sweep import SweepConfig
 
-    limits = {}
-    for item in args.limit or []:
-        *topology, count_text, starts_text = item.split(":")
-        try:
-            count, starts = int(count_text), int(starts_text)
-        except ValueError:
-            raise UsageError(f"--limit: expected N:STARTS or TOPOLOGY:N:STARTS, got {item!r}") from None
-        if len(topology) > 1:
-            raise UsageError(f"--limit: expected N:STARTS or TOPOLOGY:N:STARTS, got {item!r}")
-        limits[f"{topology[0]}:{count}" if topology else count] = starts
+    limits: dict[str | int, int] = {}
+    for topology, count, starts in args.limit or []:  # swarm.runtime.usage.limit_spec
+        limits[f"{topology}:{count}" if topology else count] = starts
     if not Path(args.model).is_file():
         raise UsageError(f"{args.model}: no such policy file")
+    for reuse_dir in args.reuse or []:
+        if not Path(reuse_dir).is_dir():
+            raise UsageError(f"--reuse {reuse_dir}: no such results directory")
+    _check_out_dir("--out", args.out)
     defaults = EvaluateConfig(model=args.model)
     config = EvaluateConfig(
         model=args.model,
@@ -264,6 +273,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         except yaml.YAMLError as error:
             raise UsageError(f"{args.config}: invalid YAML: {str(error).splitlines()[0]}") from None
     if args.out:
+        _check_out_dir("--out", args.out)
         overrides["out"] = args.out
     if args.data:
         overrides["data"] = args.data
@@ -300,6 +310,7 @@ def cmd_collect(args: argparse.Namespace) -> int:
         config = collect_config(args.preset, **overrides)
     except ValueError as error:
         raise UsageError(str(error)) from None
+    _check_out_dir("--out", str(Path(args.out).parent))
     started = time.perf_counter()
     dataset = collect(config, progress=not args.quiet)
     path = dataset.save(args.out)
@@ -309,7 +320,15 @@ def cmd_collect(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     from swarm.core.topologies import kinds
-    from swarm.runtime.usage import OneLineArgumentParser
+    from swarm.runtime.usage import (
+        OneLineArgumentParser,
+        limit_spec,
+        non_negative_int,
+        positive_float,
+        positive_int,
+        probability,
+        robot_count,
+    )
 
     grid_kinds = kinds(grid=True)
 
@@ -345,7 +364,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--engine", choices=["kinematic", "pybullet"], help="override sim.engine")
     run.add_argument("--controller", choices=list(CONTROLLER_KINDS), help="override controller.kind")
     run.add_argument("--model", help="override controller.model (exported model file)")
-    run.add_argument("--duration", type=float, help="override sim.duration_s (simulated seconds)")
+    run.add_argument("--duration", type=positive_float, help="override sim.duration_s (simulated seconds)")
     run.add_argument(
         "--agent-nice",
         type=int,
@@ -378,16 +397,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sweep.add_argument("--config", help="YAML file with any SweepConfig fields")
     sweep.add_argument("--topologies", nargs="+", help=" ".join([*grid_kinds, "line_sorted"]))
-    sweep.add_argument("--sizes", nargs="+", type=int, help="robot counts N")
-    sweep.add_argument("--seeds", type=int, help="random starts per cell")
+    sweep.add_argument("--sizes", nargs="+", type=robot_count, help="robot counts N")
+    sweep.add_argument("--seeds", type=positive_int, help="random starts per cell")
     sweep.add_argument("--controllers", nargs="+", help=" ".join(SWEEP_CONTROLLER_NAMES))
-    sweep.add_argument("--packet-loss", type=float, help="probability that a message is lost (default 0)")
-    sweep.add_argument("--model", help="policy file of controller gnn")
-    sweep.add_argument("--max-duration", type=float, help="simulated seconds before a start counts as failed")
-    sweep.add_argument("--gain", type=float, help="consensus gain K (1/s)")
-    sweep.add_argument("--v-max", type=float, help="wheel-speed limit (m/s)")
+    sweep.add_argument("--packet-loss", type=probability, help="probability that a message is lost (default 0)")
+    sweep.add_argument("--model", help="policy file of controller gnn (default: models/gnn_default.npz)")
+    sweep.add_argument("--max-duration", type=positive_float, help="simulated seconds before a start counts as failed")
+    sweep.add_argument("--gain", type=positive_float, help="consensus gain K (1/s)")
+    sweep.add_argument("--v-max", type=positive_float, help="wheel-speed limit (m/s)")
     sweep.add_argument("--out", default="runs/sweep", help="output directory (default: runs/sweep)")
-    sweep.add_argument("--workers", type=int, help="processes each cell's starts are split over (default 1)")
+    sweep.add_argument("--workers", type=positive_int, help="processes each cell's starts are split over (default 1)")
     sweep.set_defaults(handler=cmd_sweep)
 
     evaluate = commands.add_parser(
@@ -401,31 +420,32 @@ def build_parser() -> argparse.ArgumentParser:
     )
     evaluate.add_argument("model", help="policy file (.npz)")
     evaluate.add_argument("--topologies", nargs="+", help=" ".join(grid_kinds))
-    evaluate.add_argument("--sizes", nargs="+", type=int, help="robot counts N (default 6 12 24)")
-    evaluate.add_argument("--seeds", type=int, help="random starts per cell (default 1000)")
+    evaluate.add_argument("--sizes", nargs="+", type=robot_count, help="robot counts N (default 6 12 24)")
+    evaluate.add_argument("--seeds", type=positive_int, help="random starts per cell (default 1000)")
     evaluate.add_argument(
         "--limit",
         action="append",
+        type=limit_spec,
         metavar="[TOPOLOGY:]N:STARTS",
         help="run only the first STARTS starts at N (of one topology only, if given)",
     )
     evaluate.add_argument(
-        "--max-duration", type=float, help="simulated seconds before a start counts as failed"
+        "--max-duration", type=positive_float, help="simulated seconds before a start counts as failed"
     )
     evaluate.add_argument(
         "--reuse", nargs="+", help="results directories whose cached cells to read (swarm sweep)"
     )
-    evaluate.add_argument("--curve-sizes", nargs="+", type=int, help="N of the max_pairwise-over-time plots")
+    evaluate.add_argument("--curve-sizes", nargs="+", type=robot_count, help="N of the max_pairwise-over-time plots")
     evaluate.add_argument(
         "--packet-loss",
         nargs="+",
-        type=float,
+        type=probability,
         help="message-loss probabilities, each a set of cells (default 0)",
     )
-    evaluate.add_argument("--curve-starts", type=int, help="starts per max_pairwise curve (default 100)")
+    evaluate.add_argument("--curve-starts", type=positive_int, help="starts per max_pairwise curve (default 100)")
     evaluate.add_argument("--out", default="runs/evaluate", help="output directory (default: runs/evaluate)")
     evaluate.add_argument(
-        "--workers", type=int, default=1, help="processes each cell's starts are split over (default 1)"
+        "--workers", type=positive_int, default=1, help="processes each cell's starts are split over (default 1)"
     )
     evaluate.set_defaults(handler=cmd_evaluate)
 
@@ -454,14 +474,14 @@ def build_parser() -> argparse.ArgumentParser:
         "and the expert's saturated robot-frame velocity to one .npz file (swarm.learn.data).",
     )
     collect.add_argument("--preset", default="default", help="default | thesis (complete graph, N=6, M, Phi)")
-    collect.add_argument("--samples", type=int, help="robot-ticks to record (default 1,000,000)")
+    collect.add_argument("--samples", type=positive_int, help="robot-ticks to record (default 1,000,000)")
     collect.add_argument("--graphs", nargs="+", help=" ".join(grid_kinds))
-    collect.add_argument("--sizes", nargs="+", type=int, help="robot counts N")
-    collect.add_argument("--hops", type=int, help="K: features Phi1..PhiK")
+    collect.add_argument("--sizes", nargs="+", type=robot_count, help="robot counts N")
+    collect.add_argument("--hops", type=positive_int, help="K: features Phi1..PhiK")
     collect.add_argument("--phi-source", choices=["m", "output"], help="Phi from neighbours' M or outputs")
     collect.add_argument("--normaliser", choices=["degree", "n_minus_1"], help="c_i of M and Phi")
     collect.add_argument("--labels", choices=["centralized", "local_consensus"], help="the expert")
-    collect.add_argument("--seed", type=int, help="random seed")
+    collect.add_argument("--seed", type=non_negative_int, help="random seed")
     collect.add_argument(
         "--robot-from", metavar="SCENARIO", help="use the robot of this scenario (v_max, axle, offset, body)"
     )

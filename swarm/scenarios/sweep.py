@@ -4,7 +4,7 @@ Every cell runs all its random starts as one batch. An environment leaves the ba
 once its metric has stayed at or under the threshold for ``hold_s``; its convergence
 time is the first time after which the metric never rose above the threshold again
 (up to where it was simulated). Starts still above the threshold at ``max_duration_s``
-count as failures. Controller ``gnn`` runs the policy file ``model`` (its cells are cached under
+count as failures. Controller ``gnn`` runs the policy file ``model`` (default: the shipped one; its cells are cached under
 the file's hash); on disk graphs every cell also records whether the graph ever disconnected.
 """
 
@@ -23,7 +23,7 @@ from swarm.core import graphs, metrics, topologies
 from swarm.core.faults import LinkFaults
 from swarm.core.initial_poses import box_for, random_poses
 from swarm.core.robot import RobotParams
-from swarm.scenarios.scenario import ScenarioError
+from swarm.scenarios.scenario import ScenarioError, default_model_path
 from swarm.sim import kernels
 from swarm.sim.controller_kinds import ControllerArgs, batched_controller, controller_kind
 from swarm.sim.controllers import BatchedController
@@ -79,7 +79,11 @@ class SweepConfig:
         return cls().with_overrides(data, source)
 
     def with_overrides(self, overrides: dict, source: str = "command line") -> SweepConfig:
+        """These fields replaced, then checked; controller ``gnn`` without a ``model`` gets the shipped
+        ``models/gnn_default.npz``, as ``swarm run`` does."""
         config = replace(self, **overrides)
+        if "gnn" in config.controllers and config.model is None:
+            config = replace(config, model=str(default_model_path()))
         config.check(source)
         return config
 
