@@ -400,13 +400,19 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--sizes", nargs="+", type=robot_count, help="robot counts N")
     sweep.add_argument("--seeds", type=positive_int, help="random starts per cell")
     sweep.add_argument("--controllers", nargs="+", help=" ".join(SWEEP_CONTROLLER_NAMES))
-    sweep.add_argument("--packet-loss", type=probability, help="probability that a message is lost (default 0)")
+    sweep.add_argument(
+        "--packet-loss", type=probability, help="probability that a message is lost (default 0)"
+    )
     sweep.add_argument("--model", help="policy file of controller gnn (default: models/gnn_default.npz)")
-    sweep.add_argument("--max-duration", type=positive_float, help="simulated seconds before a start counts as failed")
+    sweep.add_argument(
+        "--max-duration", type=positive_float, help="simulated seconds before a start counts as failed"
+    )
     sweep.add_argument("--gain", type=positive_float, help="consensus gain K (1/s)")
     sweep.add_argument("--v-max", type=positive_float, help="wheel-speed limit (m/s)")
     sweep.add_argument("--out", default="runs/sweep", help="output directory (default: runs/sweep)")
-    sweep.add_argument("--workers", type=positive_int, help="processes each cell's starts are split over (default 1)")
+    sweep.add_argument(
+        "--workers", type=positive_int, help="processes each cell's starts are split over (default 1)"
+    )
     sweep.set_defaults(handler=cmd_sweep)
 
     evaluate = commands.add_parser(
@@ -435,17 +441,24 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument(
         "--reuse", nargs="+", help="results directories whose cached cells to read (swarm sweep)"
     )
-    evaluate.add_argument("--curve-sizes", nargs="+", type=robot_count, help="N of the max_pairwise-over-time plots")
+    evaluate.add_argument(
+        "--curve-sizes", nargs="+", type=robot_count, help="N of the max_pairwise-over-time plots"
+    )
     evaluate.add_argument(
         "--packet-loss",
         nargs="+",
         type=probability,
         help="message-loss probabilities, each a set of cells (default 0)",
     )
-    evaluate.add_argument("--curve-starts", type=positive_int, help="starts per max_pairwise curve (default 100)")
+    evaluate.add_argument(
+        "--curve-starts", type=positive_int, help="starts per max_pairwise curve (default 100)"
+    )
     evaluate.add_argument("--out", default="runs/evaluate", help="output directory (default: runs/evaluate)")
     evaluate.add_argument(
-        "--workers", type=positive_int, default=1, help="processes each cell's starts are split over (default 1)"
+        "--workers",
+        type=positive_int,
+        default=1,
+        help="processes each cell's starts are split over (default 1)",
     )
     evaluate.set_defaults(handler=cmd_evaluate)
 

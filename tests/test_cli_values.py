@@ -47,7 +47,11 @@ BAD_NAMED: dict[tuple[str, str], tuple[list[str], str, str]] = {
     ("sweep", "--topologies"): ([], "bogus", "unknown topology 'bogus'"),
     ("sweep", "--controllers"): ([], "bogus", "unknown controller 'bogus'"),
     ("sweep", "--model"): (["--controllers", "gnn"], MISSING, "no such policy file"),
-    ("sweep", "--out"): (["--sizes", "6", "--seeds", "1", "--topologies", "cycle"], A_FILE, "not a directory"),
+    ("sweep", "--out"): (
+        ["--sizes", "6", "--seeds", "1", "--topologies", "cycle"],
+        A_FILE,
+        "not a directory",
+    ),
     ("evaluate", "model"): ([], MISSING, "no such policy file"),
     ("evaluate", "--topologies"): ([MODEL], "bogus", "unknown topology 'bogus'"),
     ("evaluate", "--reuse"): ([MODEL], MISSING, "no such results directory"),
@@ -140,10 +144,8 @@ def run_bad(argv: list[str], capsys) -> tuple[int, list[str]]:
     ids=[f"{c}-{o}={v!r}" for c, o, _, v in typed_cases()],
 )
 def test_bad_typed_value_is_one_line_exit_2(command, option, before, value, capsys):
-    if option.startswith("-"):
-        argv = [command, *before, f"{option}={value}"]  # '=': a value that starts with '-' too
-    else:
-        argv = [command, *before, value]
+    # '=': a value that starts with '-' too
+    argv = [command, *before, f"{option}={value}" if option.startswith("-") else value]
     status, lines = run_bad(argv, capsys)
     assert status == 2, (argv, lines)
     assert len(lines) == 1, lines
@@ -151,7 +153,9 @@ def test_bad_typed_value_is_one_line_exit_2(command, option, before, value, caps
     assert option in lines[0] or repr(value) in lines[0], lines[0]
 
 
-@pytest.mark.parametrize(("command", "option"), sorted(BAD_NAMED), ids=[f"{c}-{o}" for c, o in sorted(BAD_NAMED)])
+@pytest.mark.parametrize(
+    ("command", "option"), sorted(BAD_NAMED), ids=[f"{c}-{o}" for c, o in sorted(BAD_NAMED)]
+)
 def test_bad_named_value_is_one_line_exit_2(command, option, tmp_path, capsys):
     before, value, expected = BAD_NAMED[(command, option)]
     a_file = tmp_path / "a-file"

@@ -2,7 +2,8 @@
 
 ``OneLineArgumentParser`` is ``argparse.ArgumentParser`` whose errors are one line (argparse prints
 the whole usage first); :func:`positive_int`, :func:`positive_float`, :func:`probability` and the
-others are ``type=`` checks that turn a bad value (``--seeds six``, ``--gain -1``) into such a line; :func:`one_line` turns any exception into one line for the user;
+others are ``type=`` checks that turn a bad value (``--seeds six``, ``--gain -1``) into such a line;
+:func:`one_line` turns any exception into one line for the user;
 :func:`silenced_stderr` keeps a C library's chatter (pybullet prints its build time on import) off it;
 :func:`configure_logging` is how a command line decides what the user sees of the library's log records.
 Standard library only (and ``swarm.core.exit_codes``): robot agents use it.

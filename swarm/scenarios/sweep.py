@@ -4,8 +4,9 @@ Every cell runs all its random starts as one batch. An environment leaves the ba
 once its metric has stayed at or under the threshold for ``hold_s``; its convergence
 time is the first time after which the metric never rose above the threshold again
 (up to where it was simulated). Starts still above the threshold at ``max_duration_s``
-count as failures. Controller ``gnn`` runs the policy file ``model`` (default: the shipped one; its cells are cached under
-the file's hash); on disk graphs every cell also records whether the graph ever disconnected.
+count as failures. Controller ``gnn`` runs the policy file ``model`` (default: the shipped one;
+its cells are cached under the file's hash); on disk graphs every cell also records whether the
+graph ever disconnected.
 """
 
 from __future__ import annotations
