@@ -173,10 +173,15 @@ def write_partial_results(out_dir: Path, why: str) -> dict | None:
         return None
 
 
+def robots_text(count: int) -> str:
+    """``1 robot``, ``6 robots``."""
+    return f"{count} robot" if count == 1 else f"{count} robots"
+
+
 def summary_lines(outcome: dict, out_dir: Path | str) -> list[str]:
     """What a finished run prints: its outcome, the faults it met and where its results are."""
     lines = [
-        f"{outcome['scenario']}: {outcome['controller']} on {outcome['engine']}, {outcome['robots']} robots",
+        f"{outcome['scenario']}: {outcome['controller']} on {outcome['engine']}, {robots_text(outcome['robots'])}",
     ]
     if outcome.get("incomplete"):
         lines.append(f"  PARTIAL: {outcome['incomplete']}")
