@@ -113,7 +113,8 @@ def live_robots(outcome: dict, count: int) -> list[int]:
 
 def run_title(scenario: Scenario) -> str:
     robots = "1 robot" if scenario.robots.count == 1 else f"{scenario.robots.count} robots"
-    return f"{scenario.name}: {scenario.controller.kind} on {scenario.sim.engine}, {robots}, {scenario.topology.kind}"
+    controller, engine = scenario.controller.kind, scenario.sim.engine
+    return f"{scenario.name}: {controller} on {engine}, {robots}, {scenario.topology.kind}"
 
 
 def write_pictures(

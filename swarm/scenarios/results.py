@@ -181,7 +181,8 @@ def robots_text(count: int) -> str:
 def summary_lines(outcome: dict, out_dir: Path | str) -> list[str]:
     """What a finished run prints: its outcome, the faults it met and where its results are."""
     lines = [
-        f"{outcome['scenario']}: {outcome['controller']} on {outcome['engine']}, {robots_text(outcome['robots'])}",
+        f"{outcome['scenario']}: {outcome['controller']} on {outcome['engine']}, "
+        f"{robots_text(outcome['robots'])}",
     ]
     if outcome.get("incomplete"):
         lines.append(f"  PARTIAL: {outcome['incomplete']}")
