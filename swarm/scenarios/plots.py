@@ -62,10 +62,11 @@ def _pyplot():
 
 
 def panel_grid(count: int, panel_width_in: float = PANEL_SIZE_IN[0]):
-    """A figure with ``count`` panels in rows of at most :data:`MAX_COLUMNS` (of two when the panels
-    are wider than 6 in); unused panels hidden."""
+    """A figure with ``count`` panels in rows of at most :data:`MAX_COLUMNS` (panels wider than 6 in:
+    one a row up to two panels, else two a row); unused panels hidden."""
     plt = _pyplot()
-    columns = min(MAX_COLUMNS if panel_width_in <= 6 else 2, max(1, count))
+    wide_columns = 1 if count <= 2 else 2
+    columns = min(MAX_COLUMNS if panel_width_in <= 6 else wide_columns, max(1, count))
     rows = math.ceil(count / columns)
     fig, axes = plt.subplots(
         rows,
@@ -92,8 +93,13 @@ def fit_axis(ax, values: Sequence[float] | np.ndarray, axis: str = "y", floor: f
         return
     low, high = float(data.min()), float(data.max())
     if high / low > LOG_SPAN:
+        from matplotlib.ticker import NullFormatter
+
         getattr(ax, f"set_{axis}scale")("log")
         getattr(ax, f"set_{axis}lim")(low / 1.2, high * 1.2)
+        which = ax.yaxis if axis == "y" else ax.xaxis
+        which.set_major_formatter(lambda value, _: f"{value:g}")  # 100, not 10^2
+        which.set_minor_formatter(NullFormatter())
     else:
         margin = 0.08 * (high - low) or 0.05 * high
         getattr(ax, f"set_{axis}lim")(max(0.0, low - margin) if low >= 0 else low - margin, high + margin)
@@ -141,7 +147,7 @@ def sweep_time_figure(rows: list[dict]):
     if lambda_rows:
         ax = axes[-1]
         colour, marker, line = controller_style("local_consensus")
-        values = []
+        values, inverses = [], []
         for topology, fill in (("cycle", "full"), ("line", "none")):
             chosen = sorted((r for r in lambda_rows if r["topology"] == topology), key=lambda r: r["robots"])
             if not chosen:
@@ -150,8 +156,9 @@ def sweep_time_figure(rows: list[dict]):
             medians = [np.nan if r["median_time_s"] is None else r["median_time_s"] for r in chosen]
             ax.plot(inverse, medians, color=colour, marker=marker, ls=line, fillstyle=fill, label=topology)
             values += medians
+            inverses += inverse
         fit_axis(ax, values)
-        ax.set_xscale("log")
+        fit_axis(ax, inverses, axis="x")
         ax.set(xlabel="1 / lambda2", ylabel="median convergence time (s)")
         ax.set_title("local consensus: time against 1/lambda2")
         ax.grid(True, which="both", alpha=0.3)
