@@ -129,7 +129,7 @@ def test_curves_figure_is_a_grid(tmp_path, topologies):
         topology: {
             controller: (
                 times,
-                0.1 + 3 * np.exp(-times / (1 + i)),
+                1e-9 + 3 * np.exp(-times / (1 + i)),
                 0.2 + 4 * np.exp(-times / (1 + i)),
                 0.3 + 5 * np.exp(-times / (1 + i)),
             )
@@ -145,6 +145,8 @@ def test_curves_figure_is_a_grid(tmp_path, topologies):
     ]
     assert len({(line.get_color(), line.get_marker()) for line in lines}) == len(CONTROLLERS)
     assert len({line.get_marker() for line in lines}) == len(CONTROLLERS)
+    low, high = panels[0].get_ylim()
+    assert low >= 0.2 / 10 / 1.5 and high <= 5.3 * 1.5, (low, high)  # no decades below the threshold
     size, texts, canvas = saved(fig, tmp_path, "curves")
     check_readable(size, texts, canvas)
     assert size[0] <= 1600  # at most three panels a row

@@ -34,6 +34,8 @@ SPARE_STYLES = [
 MAX_COLUMNS = 3
 PANEL_SIZE_IN = (4.6, 3.6)
 DPI = 110
+CURVE_FLOOR_FACTOR = 10.0
+"""The metric-over-time panels show down to threshold / this factor."""
 LOG_SPAN = 10.0
 """An axis is logarithmic only when its data span more than this factor."""
 
@@ -230,7 +232,10 @@ def curves_figure(
             ax.fill_between(times, low, high, color=colour, alpha=0.15, lw=0)
             values += [float(np.nanmin(low)), float(np.nanmax(high))]
         ax.axhline(threshold_m, color="grey", ls="--", lw=1, label=f"threshold {threshold_m:g} m")
-        fit_axis(ax, values)
+        # below a tenth of the threshold the swarm has gathered: exact controllers reach 1e-8 m there,
+        # which would spend most of the axis on what no reader needs
+        fit_axis(ax, [max(value, threshold_m / CURVE_FLOOR_FACTOR) for value in values])
+        ax.set_ylim(bottom=max(ax.get_ylim()[0], threshold_m / CURVE_FLOOR_FACTOR / 1.2))
         ax.set(xlabel="time (s)", ylabel="max pairwise distance (m)", title=f"{topology}, N = {count}")
         ax.grid(True, which="both", alpha=0.3)
     axes[0].legend(fontsize=8)
