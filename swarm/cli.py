@@ -16,10 +16,10 @@ import time
 import uuid
 from pathlib import Path
 
-import yaml
-
 from swarm.core.exit_codes import ExitCode
-from swarm.sim.controller_kinds import CONTROLLER_KINDS
+
+# Nothing heavy at module level (numpy, pydantic, the runtime): ``main`` must be running, and catching
+# Ctrl-C, within milliseconds of the command's start.
 
 SWEEP_CONTROLLER_NAMES = [
     "local_consensus",
@@ -142,9 +142,7 @@ def _print_partial(out_dir: Path, formats: list[str] | None) -> None:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from swarm.runtime.distributed import RunFailed
-    from swarm.runtime.runner import run_scenario
-    from swarm.scenarios.results import summary_lines
+    from swarm.scenarios.results import prepare_results_dir, summary_lines, write_startup_results
 
     path = Path(args.scenario) if args.scenario else _find_default_scenario()
     scenario = _load_with_overrides(path, args)
@@ -153,13 +151,22 @@ def cmd_run(args: argparse.Namespace) -> int:
 
         check_formats(args.record)
     out_dir = _results_dir(args, scenario.name)
+    prepare_results_dir(out_dir, scenario)  # at once: a Ctrl-C during start-up leaves the scenario
     try:
+        from swarm.runtime.runner import run_scenario
+
         outcome = run_scenario(scenario, out_dir, path, progress=not args.quiet, agent_nice=args.agent_nice)
     except KeyboardInterrupt:
+        if not (out_dir / "metrics.json").is_file():  # before the first tick: what the scenario says
+            with contextlib.suppress(Exception):
+                write_startup_results(
+                    out_dir, scenario, "interrupted (Ctrl-C) during start-up, before the first tick"
+                )
         _print_partial(out_dir, args.record)
         raise
-    except RunFailed:
-        _print_partial(out_dir, args.record)
+    except RuntimeError as error:
+        if _raised(error, "swarm.runtime.distributed", "RunFailed"):
+            _print_partial(out_dir, args.record)
         raise
     print("\n".join(summary_lines(outcome, out_dir)))
     _write_recordings(out_dir, args.record)
@@ -183,6 +190,8 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
+    import yaml
+
     from swarm.scenarios.sweep import SweepConfig, run_sweep
 
     config = SweepConfig()
@@ -262,6 +271,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 def cmd_train(args: argparse.Namespace) -> int:
     import importlib
 
+    import yaml
+
     from swarm.learn.train import ALGORITHMS
 
     overrides: dict = {}
@@ -329,6 +340,7 @@ def build_parser() -> argparse.ArgumentParser:
         probability,
         robot_count,
     )
+    from swarm.sim.controller_kinds import CONTROLLER_KINDS
 
     grid_kinds = kinds(grid=True)
 
@@ -503,30 +515,56 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    from swarm.runtime.distributed import RunFailed
-    from swarm.runtime.usage import configure_logging, one_line
-    from swarm.scenarios.scenario import ScenarioError
+def _raised(error: BaseException, module: str, name: str) -> bool:
+    """Whether ``error`` is ``module.name``, looked up among the modules already imported (the one
+    that raised it was; importing the runtime for the check would cost seconds)."""
+    loaded = sys.modules.get(module)
+    return loaded is not None and isinstance(error, getattr(loaded, name))
 
-    args = build_parser().parse_args(argv)
-    configure_logging(-1 if args.quiet else args.verbose)
+
+def _handle(args: argparse.Namespace) -> int:
+    """Run the command; its errors as one line and an exit status."""
+    from swarm.runtime.usage import one_line
+
+    command = f"swarm {args.command}"
     try:
         return args.handler(args)
-    except RunFailed as error:  # ran, could not complete: not bad input
-        print(f"swarm {args.command}: run failed: {one_line(error)}", file=sys.stderr)
-        return EXIT_NOT_MET
-    except (ScenarioError, UsageError) as error:
-        print(f"swarm {args.command}: error: {error}", file=sys.stderr)
+    except UsageError as error:
+        print(f"{command}: error: {error}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except OSError as error:  # a file or directory that cannot be read or written
         where = f"{error.filename}: " if error.filename else ""
-        print(f"swarm {args.command}: error: {where}{error.strerror or one_line(error)}", file=sys.stderr)
+        print(f"{command}: error: {where}{error.strerror or one_line(error)}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except ValueError as error:  # bad content found late, e.g. a policy file that is not one
-        print(f"swarm {args.command}: error: {one_line(error)}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+    except (ValueError, RuntimeError) as error:
+        if _raised(error, "swarm.runtime.distributed", "RunFailed"):  # ran, could not complete
+            print(f"{command}: run failed: {one_line(error)}", file=sys.stderr)
+            return EXIT_NOT_MET
+        if _raised(error, "swarm.scenarios.scenario", "ScenarioError"):
+            print(f"{command}: error: {error}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+        if isinstance(error, ValueError):  # bad content found late, e.g. a policy file that is not one
+            print(f"{command}: error: {one_line(error)}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+        raise
+
+
+COMMANDS = ("run", "report", "sweep", "evaluate", "train", "collect")
+
+
+def main(argv: list[str] | None = None) -> int:
+    given = sys.argv[1:] if argv is None else argv
+    first = next((word for word in given if not word.startswith("-")), None)
+    command = f"swarm {first}" if first in COMMANDS else "swarm"  # before argparse has read it
+    try:  # everything, imports included: Ctrl-C at any moment is one line and 130, never a traceback
+        from swarm.runtime.usage import configure_logging
+
+        args = build_parser().parse_args(argv)
+        command = f"swarm {args.command}"
+        configure_logging(-1 if args.quiet else args.verbose)
+        return _handle(args)
     except KeyboardInterrupt:
-        print(f"swarm {args.command}: interrupted", file=sys.stderr)
+        print(f"{command}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
 
 

@@ -173,6 +173,33 @@ def write_partial_results(out_dir: Path, why: str) -> dict | None:
         return None
 
 
+def write_startup_results(out_dir: Path, scenario: Scenario, why: str) -> dict:
+    """``metrics.json`` of a run that ended before its first tick (Ctrl-C during start-up): what is
+    known from the scenario alone (its robots, the metric and the lower bound of its initial poses),
+    not converged, ``ticks`` 0, marked partial with ``why``; the scenario is written too. Keys of an
+    earlier ``metrics.json`` are kept."""
+    out_dir = Path(out_dir)
+    prepare_results_dir(out_dir, scenario)
+    poses = scenario.initial_poses()[None]
+    adjacency = scenario.adjacency()
+    if adjacency is None:
+        assert scenario.topology.radius_m is not None  # no fixed graph: a disk graph
+        adjacency = graphs.disk(poses[0, :, :2], scenario.topology.radius_m)
+    outcome = summarize(scenario, np.zeros(1), poses, adjacency)
+    outcome.update(converged=False, convergence_time_s=None, ratio_to_lower_bound=None)
+    outcome["components"] = [
+        {**component, "converged": False, "convergence_time_s": None} for component in outcome["components"]
+    ]
+    outcome.update(incomplete=why, ticks_planned=scenario.steps)
+    try:
+        previous = json.loads((out_dir / "metrics.json").read_text())
+    except (OSError, ValueError):
+        previous = {}
+    outcome = {**(previous if isinstance(previous, dict) else {}), **outcome}
+    write_metrics(out_dir, outcome)
+    return outcome
+
+
 def robots_text(count: int) -> str:
     """``1 robot``, ``6 robots``."""
     return f"{count} robot" if count == 1 else f"{count} robots"
