@@ -142,7 +142,7 @@ def _print_partial(out_dir: Path, formats: list[str] | None) -> None:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from swarm.scenarios.results import prepare_results_dir, summary_lines, write_startup_results
+    from swarm.scenarios.results import summary_lines, write_startup_results
 
     path = Path(args.scenario) if args.scenario else _find_default_scenario()
     scenario = _load_with_overrides(path, args)
@@ -151,13 +151,12 @@ def cmd_run(args: argparse.Namespace) -> int:
 
         check_formats(args.record)
     out_dir = _results_dir(args, scenario.name)
-    prepare_results_dir(out_dir, scenario)  # at once: a Ctrl-C during start-up leaves the scenario
     try:
         from swarm.runtime.runner import run_scenario
 
         outcome = run_scenario(scenario, out_dir, path, progress=not args.quiet, agent_nice=args.agent_nice)
     except KeyboardInterrupt:
-        if not (out_dir / "metrics.json").is_file():  # before the first tick: what the scenario says
+        if not (out_dir / "metrics.json").is_file():  # before the first tick: the scenario and what it says
             with contextlib.suppress(Exception):
                 write_startup_results(
                     out_dir, scenario, "interrupted (Ctrl-C) during start-up, before the first tick"

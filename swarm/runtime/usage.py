@@ -74,7 +74,7 @@ def robot_count(text: str) -> int:
     """A swarm size N >= 2."""
     value = int(_number(text, int))
     if value < 2:
-        raise argparse.ArgumentTypeError(f"a swarm needs at least 2 robots, got {text!r}")
+        raise argparse.ArgumentTypeError(f"every N must be at least 2 (a swarm), got {text!r}")
     return value
 
 
@@ -82,7 +82,7 @@ def positive_float(text: str) -> float:
     """A finite number > 0 (durations in s, gains in 1/s, speeds in m/s)."""
     value = _number(text, float)
     if not value > 0:
-        raise argparse.ArgumentTypeError(f"must be positive, got {text!r}")
+        raise argparse.ArgumentTypeError(f"must be greater than 0, got {text!r}")
     return value
 
 
