@@ -172,3 +172,20 @@ def test_bad_named_value_is_one_line_exit_2(command, option, tmp_path, capsys):
 def test_limit_spec_reads_good_values():
     assert usage.limit_spec("12:100") == (None, 12, 100)
     assert usage.limit_spec("cycle:100:10") == ("cycle", 100, 10)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("keep", ["head", "tail"])
+def test_a_truncated_dataset_is_one_line_exit_2_and_leaves_no_output(tmp_path, capsys, keep):
+    data = tmp_path / "bc.npz"
+    assert main(["collect", "--samples", "300", "--out", str(data), "--quiet"]) == 0
+    whole = data.read_bytes()
+    cut = tmp_path / "cut.npz"
+    cut.write_bytes(whole[: len(whole) // 2] if keep == "head" else whole[: len(whole) - 100])
+    capsys.readouterr()
+    for algo in ("bc", "dagger"):
+        out = tmp_path / f"out-{algo}"
+        status, lines = run_bad(["train", "--algo", algo, "--data", str(cut), "--out", str(out)], capsys)
+        assert status == 2, lines
+        assert len(lines) == 1 and str(cut) in lines[0] and "truncated or damaged" in lines[0], lines
+        assert not out.exists()  # no empty checkpoints/ left behind
