@@ -11,6 +11,7 @@ taken for a good one (and started the work) fails the case instead of running it
 from __future__ import annotations
 
 import argparse
+import json
 import signal
 from collections.abc import Iterator
 from pathlib import Path
@@ -189,3 +190,13 @@ def test_a_truncated_dataset_is_one_line_exit_2_and_leaves_no_output(tmp_path, c
         assert status == 2, lines
         assert len(lines) == 1 and str(cut) in lines[0] and "truncated or damaged" in lines[0], lines
         assert not out.exists()  # no empty checkpoints/ left behind
+
+
+@pytest.mark.slow
+def test_sweep_of_gnn_without_model_runs_the_shipped_one(tmp_path, capsys):
+    out = tmp_path / "sweep"
+    argv = ["sweep", "--controllers", "gnn", "--sizes", "6", "--seeds", "2", "--topologies", "cycle"]
+    assert main([*argv, "--out", str(out), "--quiet"]) == 0, capsys.readouterr().err
+    config = json.loads((out / "sweep_config.json").read_text())
+    assert Path(config["model"]).resolve() == Path(MODEL).resolve()
+    assert [p.name[:12] for p in (out / "cells").iterdir()] == ["cycle_6_gnn-"]
