@@ -259,6 +259,10 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     SweepConfig(
         topologies=config.topologies, sizes=config.sizes, seeds=config.seeds, workers=config.workers
     ).check("command line")
+    for topology, count, _ in args.limit or []:
+        if (topology is not None and topology not in config.topologies) or count not in config.sizes:
+            where = f"{topology}:{count}" if topology else f"N = {count}"
+            raise UsageError(f"--limit: {where} is not a cell of this evaluation (--topologies, --sizes)")
     rows = evaluate(config, progress=not args.quiet)
     failed = [row for row in rows if row["controller"] == "gnn" and row["success_rate"] < 1.0]
     print(f"evaluate: {len(rows)} cells, table in {Path(args.out) / 'evaluation.md'}, plots in {args.out}")

@@ -34,7 +34,20 @@ BAD_BY_TYPE: dict[object, list[str]] = {
     usage.non_negative_int: ["six", "-1", "0.5"],
     usage.positive_float: ["six", "0", "-1", "nan", "inf", "-inf", ""],
     usage.probability: ["six", "-0.1", "1", "1.5", "nan"],
-    usage.limit_spec: ["six", "6", "6:", ":6:1", "a:b:c", "x:y:6:1", "6:0", "1:5", "cycle:six:1", "6:-1"],
+    usage.limit_spec: [
+        "six",
+        "6",
+        "6:",
+        ":6:1",
+        "a:b:c",
+        "x:y:6:1",
+        "6:0",
+        "1:5",
+        "cycle:six:1",
+        "6:-1",
+        "bogus:6:1",
+        "7:10",
+    ],
 }
 BAD_CHOICES = ["bogus", "", "-1"]
 
