@@ -16,10 +16,10 @@ import time
 import uuid
 from pathlib import Path
 
-import yaml
-
 from swarm.core.exit_codes import ExitCode
-from swarm.sim.controller_kinds import CONTROLLER_KINDS
+
+# Nothing heavy at module level (numpy, pydantic, the runtime): ``main`` must be running, and catching
+# Ctrl-C, within milliseconds of the command's start.
 
 SWEEP_CONTROLLER_NAMES = [
     "local_consensus",
@@ -105,6 +105,17 @@ def _results_dir(args: argparse.Namespace, name: str) -> Path:
     return out_dir
 
 
+def _check_out_dir(option: str, path: str | None) -> None:
+    """Refuse, before any work, an output directory that cannot be one (a file is in the way)."""
+    if path is None:
+        return
+    for where in (Path(path), *Path(path).parents):
+        if where.exists():
+            if not where.is_dir():
+                raise UsageError(f"{option} {path}: {where} exists and is not a directory")
+            return
+
+
 def _write_recordings(out_dir: Path, formats: list[str] | None) -> None:
     """The recordings asked for with ``--record`` (``swarm.scenarios.recording``), from the results
     on disk."""
@@ -131,9 +142,7 @@ def _print_partial(out_dir: Path, formats: list[str] | None) -> None:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from swarm.runtime.distributed import RunFailed
-    from swarm.runtime.runner import run_scenario
-    from swarm.scenarios.results import summary_lines
+    from swarm.scenarios.results import summary_lines, write_startup_results
 
     path = Path(args.scenario) if args.scenario else _find_default_scenario()
     scenario = _load_with_overrides(path, args)
@@ -143,12 +152,20 @@ def cmd_run(args: argparse.Namespace) -> int:
         check_formats(args.record)
     out_dir = _results_dir(args, scenario.name)
     try:
+        from swarm.runtime.runner import run_scenario
+
         outcome = run_scenario(scenario, out_dir, path, progress=not args.quiet, agent_nice=args.agent_nice)
     except KeyboardInterrupt:
+        if not (out_dir / "metrics.json").is_file():  # before the first tick: the scenario and what it says
+            with contextlib.suppress(Exception):
+                write_startup_results(
+                    out_dir, scenario, "interrupted (Ctrl-C) during start-up, before the first tick"
+                )
         _print_partial(out_dir, args.record)
         raise
-    except RunFailed:
-        _print_partial(out_dir, args.record)
+    except RuntimeError as error:
+        if _raised(error, "swarm.runtime.distributed", "RunFailed"):
+            _print_partial(out_dir, args.record)
         raise
     print("\n".join(summary_lines(outcome, out_dir)))
     _write_recordings(out_dir, args.record)
@@ -181,6 +198,8 @@ def cmd_report(args: argparse.Namespace) -> int:
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
+    import yaml
+
     from swarm.scenarios.sweep import SweepConfig, run_sweep
 
     config = SweepConfig()
@@ -205,6 +224,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         "packet_loss": args.packet_loss,
     }
     config = config.with_overrides({key: value for key, value in overrides.items() if value is not None})
+    _check_out_dir("--out", args.out)
     out_dir = Path(args.out)
     rows = run_sweep(config, out_dir, progress=not args.quiet)
     failed = [row for row in rows if row["success_rate"] < 1.0]
@@ -221,18 +241,15 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from swarm.scenarios.evaluate import EvaluateConfig, evaluate
     from swarm.scenarios.sweep import SweepConfig
 
-    limits = {}
-    for item in args.limit or []:
-        *topology, count_text, starts_text = item.split(":")
-        try:
-            count, starts = int(count_text), int(starts_text)
-        except ValueError:
-            raise UsageError(f"--limit: expected N:STARTS or TOPOLOGY:N:STARTS, got {item!r}") from None
-        if len(topology) > 1:
-            raise UsageError(f"--limit: expected N:STARTS or TOPOLOGY:N:STARTS, got {item!r}")
-        limits[f"{topology[0]}:{count}" if topology else count] = starts
+    limits: dict[str | int, int] = {}
+    for topology, count, starts in args.limit or []:  # swarm.runtime.usage.limit_spec
+        limits[f"{topology}:{count}" if topology else count] = starts
     if not Path(args.model).is_file():
         raise UsageError(f"{args.model}: no such policy file")
+    for reuse_dir in args.reuse or []:
+        if not Path(reuse_dir).is_dir():
+            raise UsageError(f"--reuse {reuse_dir}: no such results directory")
+    _check_out_dir("--out", args.out)
     defaults = EvaluateConfig(model=args.model)
     config = EvaluateConfig(
         model=args.model,
@@ -251,6 +268,10 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     SweepConfig(
         topologies=config.topologies, sizes=config.sizes, seeds=config.seeds, workers=config.workers
     ).check("command line")
+    for topology, count, _ in args.limit or []:
+        if (topology is not None and topology not in config.topologies) or count not in config.sizes:
+            where = f"{topology}:{count}" if topology else f"N = {count}"
+            raise UsageError(f"--limit: {where} is not a cell of this evaluation (--topologies, --sizes)")
     rows = evaluate(config, progress=not args.quiet)
     failed = [row for row in rows if row["controller"] == "gnn" and row["success_rate"] < 1.0]
     print(f"evaluate: {len(rows)} cells, table in {Path(args.out) / 'evaluation.md'}, plots in {args.out}")
@@ -261,6 +282,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 def cmd_train(args: argparse.Namespace) -> int:
     import importlib
+
+    import yaml
 
     from swarm.learn.train import ALGORITHMS
 
@@ -273,6 +296,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         except yaml.YAMLError as error:
             raise UsageError(f"{args.config}: invalid YAML: {str(error).splitlines()[0]}") from None
     if args.out:
+        _check_out_dir("--out", args.out)
         overrides["out"] = args.out
     if args.data:
         overrides["data"] = args.data
@@ -309,6 +333,7 @@ def cmd_collect(args: argparse.Namespace) -> int:
         config = collect_config(args.preset, **overrides)
     except ValueError as error:
         raise UsageError(str(error)) from None
+    _check_out_dir("--out", str(Path(args.out).parent))
     started = time.perf_counter()
     dataset = collect(config, progress=not args.quiet)
     path = dataset.save(args.out)
@@ -318,7 +343,16 @@ def cmd_collect(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     from swarm.core.topologies import kinds
-    from swarm.runtime.usage import OneLineArgumentParser
+    from swarm.runtime.usage import (
+        OneLineArgumentParser,
+        limit_spec,
+        non_negative_int,
+        positive_float,
+        positive_int,
+        probability,
+        robot_count,
+    )
+    from swarm.sim.controller_kinds import CONTROLLER_KINDS
 
     grid_kinds = kinds(grid=True)
 
@@ -354,7 +388,7 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--engine", choices=["kinematic", "pybullet"], help="override sim.engine")
     run.add_argument("--controller", choices=list(CONTROLLER_KINDS), help="override controller.kind")
     run.add_argument("--model", help="override controller.model (exported model file)")
-    run.add_argument("--duration", type=float, help="override sim.duration_s (simulated seconds)")
+    run.add_argument("--duration", type=positive_float, help="override sim.duration_s (simulated seconds)")
     run.add_argument(
         "--agent-nice",
         type=int,
@@ -387,16 +421,22 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sweep.add_argument("--config", help="YAML file with any SweepConfig fields")
     sweep.add_argument("--topologies", nargs="+", help=" ".join([*grid_kinds, "line_sorted"]))
-    sweep.add_argument("--sizes", nargs="+", type=int, help="robot counts N")
-    sweep.add_argument("--seeds", type=int, help="random starts per cell")
+    sweep.add_argument("--sizes", nargs="+", type=robot_count, help="robot counts N")
+    sweep.add_argument("--seeds", type=positive_int, help="random starts per cell")
     sweep.add_argument("--controllers", nargs="+", help=" ".join(SWEEP_CONTROLLER_NAMES))
-    sweep.add_argument("--packet-loss", type=float, help="probability that a message is lost (default 0)")
-    sweep.add_argument("--model", help="policy file of controller gnn")
-    sweep.add_argument("--max-duration", type=float, help="simulated seconds before a start counts as failed")
-    sweep.add_argument("--gain", type=float, help="consensus gain K (1/s)")
-    sweep.add_argument("--v-max", type=float, help="wheel-speed limit (m/s)")
+    sweep.add_argument(
+        "--packet-loss", type=probability, help="probability that a message is lost (default 0)"
+    )
+    sweep.add_argument("--model", help="policy file of controller gnn (default: models/gnn_default.npz)")
+    sweep.add_argument(
+        "--max-duration", type=positive_float, help="simulated seconds before a start counts as failed"
+    )
+    sweep.add_argument("--gain", type=positive_float, help="consensus gain K (1/s)")
+    sweep.add_argument("--v-max", type=positive_float, help="wheel-speed limit (m/s)")
     sweep.add_argument("--out", default="runs/sweep", help="output directory (default: runs/sweep)")
-    sweep.add_argument("--workers", type=int, help="processes each cell's starts are split over (default 1)")
+    sweep.add_argument(
+        "--workers", type=positive_int, help="processes each cell's starts are split over (default 1)"
+    )
     sweep.set_defaults(handler=cmd_sweep)
 
     evaluate = commands.add_parser(
@@ -410,31 +450,39 @@ def build_parser() -> argparse.ArgumentParser:
     )
     evaluate.add_argument("model", help="policy file (.npz)")
     evaluate.add_argument("--topologies", nargs="+", help=" ".join(grid_kinds))
-    evaluate.add_argument("--sizes", nargs="+", type=int, help="robot counts N (default 6 12 24)")
-    evaluate.add_argument("--seeds", type=int, help="random starts per cell (default 1000)")
+    evaluate.add_argument("--sizes", nargs="+", type=robot_count, help="robot counts N (default 6 12 24)")
+    evaluate.add_argument("--seeds", type=positive_int, help="random starts per cell (default 1000)")
     evaluate.add_argument(
         "--limit",
         action="append",
+        type=limit_spec,
         metavar="[TOPOLOGY:]N:STARTS",
         help="run only the first STARTS starts at N (of one topology only, if given)",
     )
     evaluate.add_argument(
-        "--max-duration", type=float, help="simulated seconds before a start counts as failed"
+        "--max-duration", type=positive_float, help="simulated seconds before a start counts as failed"
     )
     evaluate.add_argument(
         "--reuse", nargs="+", help="results directories whose cached cells to read (swarm sweep)"
     )
-    evaluate.add_argument("--curve-sizes", nargs="+", type=int, help="N of the max_pairwise-over-time plots")
+    evaluate.add_argument(
+        "--curve-sizes", nargs="+", type=robot_count, help="N of the max_pairwise-over-time plots"
+    )
     evaluate.add_argument(
         "--packet-loss",
         nargs="+",
-        type=float,
+        type=probability,
         help="message-loss probabilities, each a set of cells (default 0)",
     )
-    evaluate.add_argument("--curve-starts", type=int, help="starts per max_pairwise curve (default 100)")
+    evaluate.add_argument(
+        "--curve-starts", type=positive_int, help="starts per max_pairwise curve (default 100)"
+    )
     evaluate.add_argument("--out", default="runs/evaluate", help="output directory (default: runs/evaluate)")
     evaluate.add_argument(
-        "--workers", type=int, default=1, help="processes each cell's starts are split over (default 1)"
+        "--workers",
+        type=positive_int,
+        default=1,
+        help="processes each cell's starts are split over (default 1)",
     )
     evaluate.set_defaults(handler=cmd_evaluate)
 
@@ -463,14 +511,14 @@ def build_parser() -> argparse.ArgumentParser:
         "and the expert's saturated robot-frame velocity to one .npz file (swarm.learn.data).",
     )
     collect.add_argument("--preset", default="default", help="default | thesis (complete graph, N=6, M, Phi)")
-    collect.add_argument("--samples", type=int, help="robot-ticks to record (default 1,000,000)")
+    collect.add_argument("--samples", type=positive_int, help="robot-ticks to record (default 1,000,000)")
     collect.add_argument("--graphs", nargs="+", help=" ".join(grid_kinds))
-    collect.add_argument("--sizes", nargs="+", type=int, help="robot counts N")
-    collect.add_argument("--hops", type=int, help="K: features Phi1..PhiK")
+    collect.add_argument("--sizes", nargs="+", type=robot_count, help="robot counts N")
+    collect.add_argument("--hops", type=positive_int, help="K: features Phi1..PhiK")
     collect.add_argument("--phi-source", choices=["m", "output"], help="Phi from neighbours' M or outputs")
     collect.add_argument("--normaliser", choices=["degree", "n_minus_1"], help="c_i of M and Phi")
     collect.add_argument("--labels", choices=["centralized", "local_consensus"], help="the expert")
-    collect.add_argument("--seed", type=int, help="random seed")
+    collect.add_argument("--seed", type=non_negative_int, help="random seed")
     collect.add_argument(
         "--robot-from", metavar="SCENARIO", help="use the robot of this scenario (v_max, axle, offset, body)"
     )
@@ -479,30 +527,56 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    from swarm.runtime.distributed import RunFailed
-    from swarm.runtime.usage import configure_logging, one_line
-    from swarm.scenarios.scenario import ScenarioError
+def _raised(error: BaseException, module: str, name: str) -> bool:
+    """Whether ``error`` is ``module.name``, looked up among the modules already imported (the one
+    that raised it was; importing the runtime for the check would cost seconds)."""
+    loaded = sys.modules.get(module)
+    return loaded is not None and isinstance(error, getattr(loaded, name))
 
-    args = build_parser().parse_args(argv)
-    configure_logging(-1 if args.quiet else args.verbose)
+
+def _handle(args: argparse.Namespace) -> int:
+    """Run the command; its errors as one line and an exit status."""
+    from swarm.runtime.usage import one_line
+
+    command = f"swarm {args.command}"
     try:
         return args.handler(args)
-    except RunFailed as error:  # ran, could not complete: not bad input
-        print(f"swarm {args.command}: run failed: {one_line(error)}", file=sys.stderr)
-        return EXIT_NOT_MET
-    except (ScenarioError, UsageError) as error:
-        print(f"swarm {args.command}: error: {error}", file=sys.stderr)
+    except UsageError as error:
+        print(f"{command}: error: {error}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except OSError as error:  # a file or directory that cannot be read or written
         where = f"{error.filename}: " if error.filename else ""
-        print(f"swarm {args.command}: error: {where}{error.strerror or one_line(error)}", file=sys.stderr)
+        print(f"{command}: error: {where}{error.strerror or one_line(error)}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except ValueError as error:  # bad content found late, e.g. a policy file that is not one
-        print(f"swarm {args.command}: error: {one_line(error)}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+    except (ValueError, RuntimeError) as error:
+        if _raised(error, "swarm.runtime.distributed", "RunFailed"):  # ran, could not complete
+            print(f"{command}: run failed: {one_line(error)}", file=sys.stderr)
+            return EXIT_NOT_MET
+        if _raised(error, "swarm.scenarios.scenario", "ScenarioError"):
+            print(f"{command}: error: {error}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+        if isinstance(error, ValueError):  # bad content found late, e.g. a policy file that is not one
+            print(f"{command}: error: {one_line(error)}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+        raise
+
+
+COMMANDS = ("run", "report", "sweep", "evaluate", "train", "collect")
+
+
+def main(argv: list[str] | None = None) -> int:
+    given = sys.argv[1:] if argv is None else argv
+    first = next((word for word in given if not word.startswith("-")), None)
+    command = f"swarm {first}" if first in COMMANDS else "swarm"  # before argparse has read it
+    try:  # everything, imports included: Ctrl-C at any moment is one line and 130, never a traceback
+        from swarm.runtime.usage import configure_logging
+
+        args = build_parser().parse_args(argv)
+        command = f"swarm {args.command}"
+        configure_logging(-1 if args.quiet else args.verbose)
+        return _handle(args)
     except KeyboardInterrupt:
-        print(f"swarm {args.command}: interrupted", file=sys.stderr)
+        print(f"{command}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
 
 

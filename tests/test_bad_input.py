@@ -71,7 +71,7 @@ def files(tmp_path_factory) -> dict[str, Path]:
         (["run", "{missing}"], "no such scenario file"),
         (["run", "{bad_yaml}"], "invalid YAML at line"),
         (["run", "{bad_key_scenario}"], "bogus: unknown key"),
-        (["run", str(SCENARIO), "--duration", "-1"], "sim.duration_s"),
+        (["run", str(SCENARIO), "--duration", "-1"], "--duration: must be greater than 0"),
         (["run", str(SCENARIO), "--engine", "warp"], "argument --engine: invalid choice"),
         (["run", str(SCENARIO), "--out", "/proc/no/such/dir", "--engine", "kinematic"], "/proc/no"),
         (["sweep", "--config", "{missing}"], "no such sweep config file"),

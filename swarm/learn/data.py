@@ -28,6 +28,8 @@ from __future__ import annotations
 
 import json
 import math
+import zipfile
+import zlib
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Literal
@@ -160,13 +162,25 @@ class Dataset:
 
 
 def load_dataset(path: str | Path) -> Dataset:
-    with np.load(path, allow_pickle=False) as file:
-        metadata = json.loads(file[METADATA_KEY].tobytes().decode("utf-8"))
-        if metadata.get("format") != FORMAT or metadata.get("format_version") != FORMAT_VERSION:
-            raise ValueError(f"{path}: not a {FORMAT} v{FORMAT_VERSION} file")
-        return Dataset(
-            file["features"], file["labels"], file["robot_count"], file["graph"], file["tick"], metadata
-        )
+    """Read a dataset written by :meth:`Dataset.save`. A file that cannot be read as one (truncated,
+    damaged, another format) raises ``ValueError`` naming the file and why, in one line."""
+    try:
+        with np.load(path, allow_pickle=False) as file:
+            metadata = json.loads(file[METADATA_KEY].tobytes().decode("utf-8"))
+            if metadata.get("format") != FORMAT or metadata.get("format_version") != FORMAT_VERSION:
+                raise ValueError(f"{path}: not a {FORMAT} v{FORMAT_VERSION} file")
+            return Dataset(
+                file["features"], file["labels"], file["robot_count"], file["graph"], file["tick"], metadata
+            )
+    except FileNotFoundError:
+        raise
+    except ValueError as error:
+        if str(error).startswith(f"{path}: "):
+            raise
+        raise ValueError(f"{path}: not a readable dataset (truncated or damaged?): {error}") from None
+    except (OSError, EOFError, KeyError, zipfile.BadZipFile, zlib.error) as error:
+        reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        raise ValueError(f"{path}: not a readable dataset (truncated or damaged?): {reason}") from None
 
 
 class ExpertRecorder:

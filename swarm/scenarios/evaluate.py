@@ -46,14 +46,6 @@ CONTROLLER_ORDER = (
 """The model beside the strongest baselines: ``mec_flood`` with and without reversing, the
 time-optimal ``centralized_mec``, the thesis's ``centralized`` expert and local consensus."""
 CENTRAL_CONTROLLERS = ("centralized_mec", "centralized")  # ignore links: not run under packet loss
-COLOURS = {
-    "centralized": "tab:green",
-    "gnn": "tab:blue",
-    "local_consensus": "tab:red",
-    "mec_flood": "tab:purple",
-    "mec_flood_forward": "tab:pink",
-    "centralized_mec": "tab:olive",
-}
 
 
 @dataclass(frozen=True)
@@ -136,40 +128,25 @@ def metric_curves(
 
 
 def plot_curves(config: EvaluateConfig, rows: list[dict], count: int, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    """``max_pairwise`` over time at N = ``count``, one panel per topology (``swarm.scenarios.plots``)."""
+    from swarm.scenarios import plots
 
     topologies = [
         t for t in config.topologies if any(r["topology"] == t and r["robots"] == count for r in rows)
     ]
-    fig, axes = plt.subplots(1, len(topologies), figsize=(4.2 * len(topologies), 3.8), dpi=110, squeeze=False)
     dt = SweepConfig().control_period_s
-    for ax, topology in zip(axes[0], topologies, strict=True):
+    curves: dict[str, dict] = {}
+    for topology in topologies:
         cell_rows = [r for r in rows if r["topology"] == topology and r["robots"] == count]
         p90 = [r["p90_time_s"] for r in cell_rows if r["p90_time_s"] is not None]
         horizon = min(config.curve_horizon_s, 1.2 * max(p90)) if p90 else config.curve_horizon_s
+        curves[topology] = {}
         for controller in CONTROLLER_ORDER:
             values = metric_curves(config, topology, count, controller, horizon)
-            times = np.arange(len(values)) * dt
             low, median, high = np.percentile(values, [10, 50, 90], axis=1)
-            label = "model (gnn)" if controller == "gnn" else controller.replace("_", " ")
-            ax.plot(times, median, color=COLOURS[controller], label=label)
-            ax.fill_between(times, low, high, color=COLOURS[controller], alpha=0.2, lw=0)
-        ax.axhline(SweepConfig().threshold_m, color="grey", ls="--", lw=1)
-        ax.set(
-            yscale="log",
-            xlabel="time (s)",
-            ylabel="max pairwise distance (m)",
-            title=f"{topology}, N = {count}",
-        )
-        ax.grid(True, which="both", alpha=0.3)
-    axes[0][0].legend(fontsize=7)
-    fig.suptitle(f"{Path(config.model).name}: median and 10-90 % over {config.curve_starts} starts")
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+            curves[topology][controller] = (np.arange(len(values)) * dt, low, median, high)
+    title = f"{Path(config.model).name}: median and 10-90 % over {config.curve_starts} starts"
+    plots.save(plots.curves_figure(curves, count, SweepConfig().threshold_m, title), path)
 
 
 def evaluate(config: EvaluateConfig, progress: bool = True) -> list[dict]:

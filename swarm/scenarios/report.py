@@ -112,10 +112,9 @@ def live_robots(outcome: dict, count: int) -> list[int]:
 
 
 def run_title(scenario: Scenario) -> str:
-    robots, topology = scenario.robots.count, scenario.topology.kind
-    return (
-        f"{scenario.name}: {scenario.controller.kind} on {scenario.sim.engine}, {robots} robots, {topology}"
-    )
+    robots = "1 robot" if scenario.robots.count == 1 else f"{scenario.robots.count} robots"
+    controller, engine = scenario.controller.kind, scenario.sim.engine
+    return f"{scenario.name}: {controller} on {engine}, {robots}, {scenario.topology.kind}"
 
 
 def write_pictures(

@@ -173,10 +173,43 @@ def write_partial_results(out_dir: Path, why: str) -> dict | None:
         return None
 
 
+def write_startup_results(out_dir: Path, scenario: Scenario, why: str) -> dict:
+    """``metrics.json`` of a run that ended before its first tick (Ctrl-C during start-up): what is
+    known from the scenario alone (its robots, the metric and the lower bound of its initial poses),
+    not converged, ``ticks`` 0, marked partial with ``why``; the scenario is written too. Keys of an
+    earlier ``metrics.json`` are kept."""
+    out_dir = Path(out_dir)
+    prepare_results_dir(out_dir, scenario)
+    poses = scenario.initial_poses()[None]
+    adjacency = scenario.adjacency()
+    if adjacency is None:
+        assert scenario.topology.radius_m is not None  # no fixed graph: a disk graph
+        adjacency = graphs.disk(poses[0, :, :2], scenario.topology.radius_m)
+    outcome = summarize(scenario, np.zeros(1), poses, adjacency)
+    outcome.update(converged=False, convergence_time_s=None, ratio_to_lower_bound=None)
+    outcome["components"] = [
+        {**component, "converged": False, "convergence_time_s": None} for component in outcome["components"]
+    ]
+    outcome.update(incomplete=why, ticks_planned=scenario.steps)
+    try:
+        previous = json.loads((out_dir / "metrics.json").read_text())
+    except (OSError, ValueError):
+        previous = {}
+    outcome = {**(previous if isinstance(previous, dict) else {}), **outcome}
+    write_metrics(out_dir, outcome)
+    return outcome
+
+
+def robots_text(count: int) -> str:
+    """``1 robot``, ``6 robots``."""
+    return f"{count} robot" if count == 1 else f"{count} robots"
+
+
 def summary_lines(outcome: dict, out_dir: Path | str) -> list[str]:
     """What a finished run prints: its outcome, the faults it met and where its results are."""
     lines = [
-        f"{outcome['scenario']}: {outcome['controller']} on {outcome['engine']}, {outcome['robots']} robots",
+        f"{outcome['scenario']}: {outcome['controller']} on {outcome['engine']}, "
+        f"{robots_text(outcome['robots'])}",
     ]
     if outcome.get("incomplete"):
         lines.append(f"  PARTIAL: {outcome['incomplete']}")
@@ -250,11 +283,50 @@ def fault_lines(faults: dict) -> list[str]:
     return lines
 
 
+def blocks_from_disk(out_dir: Path, scenario: Scenario) -> dict:
+    """The ``runtime`` and ``processes`` blocks a distributed run leaves on disk when it ended before
+    writing them (Ctrl-C, a failed run): the sim server's ``server_stats.json`` (ticks served and
+    missed, command latency) and the agents' records ``logs/agent_<i>.json`` (pids, messages); empty
+    without them (a kinematic run). ``runtime.source`` says where it came from."""
+    out_dir = Path(out_dir)
+    try:
+        stats = json.loads((out_dir / "server_stats.json").read_text())
+    except (OSError, ValueError):
+        return {}
+    if not isinstance(stats, dict):
+        return {}
+    records = {}
+    for record_path in sorted((out_dir / "logs").glob("agent_*.json")):
+        with contextlib.suppress(OSError, ValueError, IndexError):
+            records[int(record_path.stem.split("_")[1])] = json.loads(record_path.read_text())
+    messages = [record.get("messages") or {} for record in records.values()]
+    ready = [record["ready_s"] for record in records.values() if "ready_s" in record]
+    runtime = {
+        "source": "server_stats.json and logs/agent_*.json (the run ended before its own summary)",
+        "mode": stats.get("mode", scenario.sim.mode),
+        "server_startup_s": stats.get("startup_s"),
+        "agent_ready_s_max": max(ready) if ready else None,
+        "ticks_served": stats.get("ticks_served"),
+        "ticks_missed": stats.get("ticks_missed"),
+        "command_latency_ms": stats.get("latency_ms"),
+        "messages_received": int(sum(m.get("received", 0) for m in messages)),
+        "messages_lost": int(sum(m.get("lost", 0) for m in messages)),
+        "messages_invalid": int(sum(m.get("invalid", 0) for m in messages)),
+        "invalid_commands": stats.get("invalid_commands"),
+        "access_control": scenario.sim.acl,
+        "agent_exit_reasons": sorted({str(record.get("exit_reason")) for record in records.values()}),
+    }
+    processes = {"agent_pids": {str(i): record.get("pid") for i, record in sorted(records.items())}}
+    return {"runtime": runtime, "processes": processes}
+
+
 def report(out_dir: Path, partial: str | None = None) -> dict:
     """Re-create ``metrics.json``, ``convergence.png`` and ``animation.gif`` from what a run left on
     disk, however it ended (``swarm report RUN_DIR``): the scenario, the trajectory up to its last
     complete line, and ``events.jsonl`` when there is one. Keys of an earlier ``metrics.json`` that
-    the trajectory cannot give (``processes``, ``runtime``, ...) are kept. ``partial``: why the run
+    the trajectory cannot give (``processes``, ``runtime``, ...) are kept; where it has none (a run
+    interrupted before writing them) they are read back from the processes' files
+    (:func:`blocks_from_disk`). ``partial``: why the run
     ended early (the outcome is then marked partial even if every tick is there). Raises
     ``ScenarioError`` with one line when the directory cannot be read."""
     from swarm.scenarios.scenario import ScenarioError, load_scenario
@@ -286,7 +358,7 @@ def report(out_dir: Path, partial: str | None = None) -> dict:
         previous = {}
     if not isinstance(previous, dict):
         previous = {}
-    outcome = {**previous, **outcome}
+    outcome = {**blocks_from_disk(out_dir, scenario), **previous, **outcome}  # the run's own blocks win
     steps = scenario.steps
     if partial:
         outcome["incomplete"] = partial

@@ -528,27 +528,33 @@ def _typo(errors: Sequence[Any]) -> dict | None:
     return best
 
 
-def describe_validation_error(error: ValidationError) -> str:
-    """First pydantic error as ``key: reason`` (plus how many more there are); an unknown key that
-    looks like a typo of a known one comes first, with the suggestion."""
-    errors = error.errors()
-    first = errors[0]
-    typo = _typo(errors)
-    if typo is not None:
-        more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
-        key, suggestion = typo["loc"][-1], typo["suggestion"]
-        return f"{_location(tuple(typo['loc']))}: unknown key '{key}', did you mean '{suggestion}'?{more}"
-    loc = tuple(part for part in first["loc"] if not (isinstance(part, str) and part.startswith("function-")))
-    message = first["msg"].removeprefix("Value error, ")
-    keyed = (first.get("ctx") or {}).get("error")
+def _describe_one(item: Any) -> str:
+    """One pydantic error as ``key: reason``."""
+    loc = tuple(part for part in item["loc"] if not (isinstance(part, str) and part.startswith("function-")))
+    message = item["msg"].removeprefix("Value error, ")
+    keyed = (item.get("ctx") or {}).get("error")
     if isinstance(keyed, KeyedError):  # an error about a key below the model that raised it
         loc = (*loc, *keyed.key)
-    if first["type"] == "extra_forbidden":
+    if item["type"] == "extra_forbidden":
         message = "unknown key"
-    elif first["type"] == "missing":
+    elif item["type"] == "missing":
         message = "required key is missing"
-    more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
-    return f"{_location(loc)}: {message}{more}"
+    return f"{_location(loc)}: {message}"
+
+
+def describe_validation_error(error: ValidationError) -> str:
+    """Every pydantic error as ``key: reason``, joined by ``; `` on one line; an unknown key that
+    looks like a typo of a known one comes first, with the suggestion."""
+    errors = list(error.errors())
+    typo = _typo(errors)
+    parts = []
+    if typo is not None:
+        key, suggestion = typo["loc"][-1], typo["suggestion"]
+        parts.append(f"{_location(tuple(typo['loc']))}: unknown key '{key}', did you mean '{suggestion}'?")
+        meant = (*tuple(typo["loc"])[:-1], suggestion)  # its "required key is missing" is the same mistake
+        errors = [item for item in errors if tuple(item["loc"]) not in (tuple(typo["loc"]), meant)]
+    parts += [_describe_one(item) for item in errors]
+    return "; ".join(dict.fromkeys(parts))
 
 
 def parse_scenario(data: object, source: str = "<scenario>") -> Scenario:

@@ -4,8 +4,9 @@ Every cell runs all its random starts as one batch. An environment leaves the ba
 once its metric has stayed at or under the threshold for ``hold_s``; its convergence
 time is the first time after which the metric never rose above the threshold again
 (up to where it was simulated). Starts still above the threshold at ``max_duration_s``
-count as failures. Controller ``gnn`` runs the policy file ``model`` (its cells are cached under
-the file's hash); on disk graphs every cell also records whether the graph ever disconnected.
+count as failures. Controller ``gnn`` runs the policy file ``model`` (default: the shipped one;
+its cells are cached under the file's hash); on disk graphs every cell also records whether the
+graph ever disconnected.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from swarm.core import graphs, metrics, topologies
 from swarm.core.faults import LinkFaults
 from swarm.core.initial_poses import box_for, random_poses
 from swarm.core.robot import RobotParams
-from swarm.scenarios.scenario import ScenarioError
+from swarm.scenarios.scenario import ScenarioError, default_model_path
 from swarm.sim import kernels
 from swarm.sim.controller_kinds import ControllerArgs, batched_controller, controller_kind
 from swarm.sim.controllers import BatchedController
@@ -79,7 +80,11 @@ class SweepConfig:
         return cls().with_overrides(data, source)
 
     def with_overrides(self, overrides: dict, source: str = "command line") -> SweepConfig:
+        """These fields replaced, then checked; controller ``gnn`` without a ``model`` gets the shipped
+        ``models/gnn_default.npz``, as ``swarm run`` does."""
         config = replace(self, **overrides)
+        if "gnn" in config.controllers and config.model is None:
+            config = replace(config, model=str(default_model_path()))
         config.check(source)
         return config
 
@@ -572,61 +577,9 @@ def write_tables(out_dir: Path, config: SweepConfig, rows: list[dict]) -> None:
 
 
 def plot_sweep(out_dir: Path, cells: list[dict], rows: list[dict], config: SweepConfig) -> None:
-    """Convergence time against N and against 1/lambda2, and ratio-to-lower-bound distributions."""
-    import matplotlib
+    """``convergence_time.png`` (time against N per topology, and against 1/lambda2) and
+    ``ratio_to_lower_bound.png`` (distributions per controller): ``swarm.scenarios.plots``."""
+    from swarm.scenarios import plots
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    controllers = list(dict.fromkeys(row["controller"] for row in rows))
-    topologies = list(dict.fromkeys(row["topology"] for row in rows))
-
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5), dpi=110)
-    for topology in topologies:
-        for controller in controllers:
-            chosen = [r for r in rows if r["topology"] == topology and r["controller"] == controller]
-            sizes = [r["robots"] for r in chosen]
-            medians = [r["median_time_s"] or np.nan for r in chosen]
-            style = "-" if controller == "local_consensus" else ":"
-            axes[0].plot(sizes, medians, style, marker="o", label=f"{topology}, {controller}")
-            if controller == "local_consensus" and topology in ("cycle", "line"):
-                inverse_lambda2 = [1.0 / r["median_lambda2"] for r in chosen]
-                axes[1].plot(inverse_lambda2, medians, marker="o", label=topology)
-    axes[0].set(xscale="log", yscale="log", xlabel="robots N", ylabel="median convergence time (s)")
-    axes[0].set_title("convergence time against swarm size")
-    axes[1].set(xscale="log", yscale="log", xlabel="1 / lambda2", ylabel="median convergence time (s)")
-    axes[1].set_title("local consensus on cycles and lines: time against 1/lambda2")
-    axes[1].annotate(
-        "complete, star, random graphs: limited by the speed limit, not by lambda2",
-        (0.02, 0.02),
-        xycoords="axes fraction",
-        fontsize=7,
-    )
-    reference = np.logspace(-1, 4, 10)
-    axes[1].plot(reference, reference * 4.0, color="grey", ls="--", lw=1, label="slope 1")
-    for ax in axes:
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out_dir / "convergence_time.png")
-    plt.close(fig)
-
-    fig, axes = plt.subplots(1, len(controllers), figsize=(6 * len(controllers), 4.5), dpi=110, squeeze=False)
-    for ax, controller in zip(axes[0], controllers, strict=True):
-        labels, data = [], []
-        for cell in cells:
-            if cell["controller"] != controller:
-                continue
-            lower = cell["lower_bound_s"]
-            ratio = cell["times_s"][lower > 0] / lower[lower > 0]
-            data.append(ratio[~np.isnan(ratio)])
-            labels.append(f"{cell['topology'][:4]}{cell['robots']}")
-        ax.boxplot(data, whis=(1, 99), showfliers=False)
-        ax.set_xticks(range(1, len(labels) + 1), labels, rotation=90, fontsize=7)
-        ax.axhline(1.0, color="tab:red", lw=1, ls="-.", label="lower bound")
-        ax.set(yscale="log", ylabel="convergence time / lower bound", title=f"{controller}")
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(out_dir / "ratio_to_lower_bound.png")
-    plt.close(fig)
+    plots.save(plots.sweep_time_figure(rows), out_dir / "convergence_time.png")
+    plots.save(plots.sweep_ratio_figure(cells), out_dir / "ratio_to_lower_bound.png")

@@ -22,11 +22,11 @@ done
 # re-run with the new rule, per start (recheck.md: identical)
 swarm sweep --controllers gnn --model $PREVIOUS --seeds 1000 --max-duration 300 --quiet \
     --topologies complete cycle line star random disk --sizes 6 24 --out $OUT/eval_recheck
-python bench/compare_cells.py --before $OUT/eval_a $OUT/eval_b --after $OUT/eval_recheck \
+python bench/investigations/compare_cells.py --before $OUT/eval_a $OUT/eval_b --after $OUT/eval_recheck \
     --out $OUT/recheck.md
 # where the previous model lost time at N = 6: its target or its learned steering
-python bench/flood_n6_limit.py --model $PREVIOUS --sizes 6 --starts 200 --out $OUT/n6_limit.md
-python bench/flood_n6_limit.py --model $MODEL --sizes 6 --starts 200 --out $OUT/n6_limit_steering.md
+python bench/investigations/flood_n6_limit.py --model $PREVIOUS --sizes 6 --starts 200 --out $OUT/n6_limit.md
+python bench/investigations/flood_n6_limit.py --model $MODEL --sizes 6 --starts 200 --out $OUT/n6_limit_steering.md
 # mec_flood's cells beside it: bench/baselines.py (its docstring); here the ones the GNN's table
 # needed (disk and line_sorted); the tables read every cache, the model's cells included
 python bench/baselines.py --out docs/results/baselines --only mec_flood --graphs disk line_sorted \

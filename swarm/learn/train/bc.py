@@ -152,14 +152,13 @@ def plot_curve(log_rows: list[dict], path: Path) -> None:
 
 def train(config: BCConfig) -> Path:
     """Train, checkpoint every epoch, export the model with the lowest validation loss; returns its path."""
+    # -- data: features (S, K, 2) and saturated labels (S, 2), robot frame ------------------------
+    dataset = load_dataset(config.data)  # first: a bad file leaves no output folder behind
     out = Path(config.out)
     (out / "checkpoints").mkdir(parents=True, exist_ok=True)
     torch.manual_seed(config.seed)
     torch.set_num_threads(config.threads)
     rng = np.random.default_rng(config.seed)
-
-    # -- data: features (S, K, 2) and saturated labels (S, 2), robot frame ------------------------
-    dataset = load_dataset(config.data)
     data_spec = dataset.spec
     hops = config.hops or data_spec.hops
     if hops > data_spec.hops:

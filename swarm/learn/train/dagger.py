@@ -138,11 +138,11 @@ def plot_curve(rows: list[dict], path: Path) -> None:
 
 def train(config: DAggerConfig) -> Path:
     """Run the DAgger loop; returns the exported policy file (the best iterate in closed loop)."""
+    dataset = load_dataset(config.data)  # first: a bad file leaves no output folder behind
     out = Path(config.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "config.json").write_text(json.dumps(asdict(config), indent=2) + "\n")
     rng = np.random.default_rng(config.seed)
-    dataset = load_dataset(config.data)
     collect_base = collect_config(**{**dataset.metadata["config"], **config.collect})
     collect_base = replace(collect_base, samples=config.samples_per_iteration)
     bc_base = {"seed": config.seed, "progress": config.progress, **config.bc}

@@ -12,11 +12,16 @@ exit / ticks, as ``runtime_limit.py`` reports it) is beside it.
 its own code on ``PYTHONPATH``, this script copied in) and of this working tree, alternating (base,
 head, base, head, ...), in one invocation, so that both see the same machine.
 
-Run: ``python bench/alone_probe.py --base main --count 100 --repeats 2 --update-results`` (writes
-``alone_probe.{json,md}`` to the output directory).
+Run: ``python bench/investigations/alone_probe.py --base main --count 100 --repeats 2 --update-results``
+(writes ``alone_probe.{json,md}`` to the output directory).
 """
 
 from __future__ import annotations
+
+import sys as _sys
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent.parent))  # bench/: its helpers and benchmarks
 
 import argparse
 import collections
@@ -217,11 +222,13 @@ def ab(args: argparse.Namespace, command: str) -> int:
     results = []
     with base_worktree(args.base, "alone-ab-") as base_tree:
         work = base_tree.parent
-        shutil.copy(Path(__file__), base_tree / "bench" / "alone_probe.py")
+        (base_tree / "bench" / "investigations").mkdir(exist_ok=True)
+        shutil.copy(Path(__file__), base_tree / "bench" / "investigations" / "alone_probe.py")
         for i, which in enumerate([w for _ in range(args.repeats) for w in ("base", "head")]):
             tree = base_tree if which == "base" else ROOT
             out = work / f"run{i}"
-            child = [sys.executable, str(tree / "bench" / "alone_probe.py"), "--count", str(args.count)]
+            script = tree / "bench" / "investigations" / "alone_probe.py"
+            child = [sys.executable, str(script), "--count", str(args.count)]
             child += ["--duration", str(args.duration), "--mode", args.mode, "--repeats", "1"]
             child += ["--agents", *args.agents, "--out", str(out)]
             env = dict(os.environ, PYTHONPATH=str(tree))
@@ -255,7 +262,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.count < 1 or args.duration <= 0 or args.repeats < 1:
         print("alone_probe: error: --count, --duration and --repeats must be positive", file=sys.stderr)
         return 2
-    command = "python bench/alone_probe.py " + shlex.join(argv if argv is not None else sys.argv[1:])
+    given = argv if argv is not None else sys.argv[1:]
+    command = "python bench/investigations/alone_probe.py " + shlex.join(given)
     if args.base:
         return ab(args, command)
     steps = round(args.duration / 0.05)

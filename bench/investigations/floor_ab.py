@@ -6,11 +6,16 @@ commits in one invocation, alternating (base, head, base, head, ...), each from 
 (``git worktree add`` of ``--base`` in a temporary directory; head is this working tree) with its
 own code on ``PYTHONPATH``, and reports every run's ratio and the machine's load beside it.
 
-Run: ``python bench/floor_ab.py --base a779117 --counts 6 100 --pairs 2 --update-results`` (writes
-``floor_ab.{json,md}`` to the output directory; ``--update-results``: ``bench/results/``).
+Run: ``python bench/investigations/floor_ab.py --base a779117 --counts 6 100 --pairs 2 --update-results``
+(writes ``floor_ab.{json,md}`` to the output directory; ``--update-results``: ``bench/results/``).
 """
 
 from __future__ import annotations
+
+import sys as _sys
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent.parent))  # bench/: its helpers and benchmarks
 
 import argparse
 import json
@@ -90,7 +95,8 @@ def main(argv: list[str] | None = None) -> int:
             runs.append(
                 {"robots": count, "which": which} | floor_run(tree, count, base_tree.parent / f"run{i}")
             )
-    command = "python bench/floor_ab.py " + " ".join(argv if argv is not None else sys.argv[1:])
+    given = argv if argv is not None else sys.argv[1:]
+    command = "python bench/investigations/floor_ab.py " + " ".join(given)
     report = {"command": command, "base": base, "head": f"{head} (working tree)", "runs": runs}
     (out / "floor_ab.json").write_text(json.dumps(report, indent=1) + "\n")
     (out / "floor_ab.md").write_text(markdown(report))

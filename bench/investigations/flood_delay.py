@@ -6,11 +6,16 @@ v_max 0.5 m/s, threshold 0.2 m held 5 s, 300 s at most) run in the kinematic eng
 starts (the batch composition once mattered: issue 18's out-of-bounds read failed the last starts of
 every batch). Prints one line per cell: the success rate, the failed starts and the median time.
 
-    python bench/flood_delay.py [--topology line] [--sizes 50] [--delay 5] [--starts 200] [--batch 50]
-        [--model models/gnn_flood.npz]
+    python bench/investigations/flood_delay.py [--topology line] [--sizes 50] [--delay 5] \
+        [--starts 200] [--batch 50] [--model models/gnn_flood.npz]
 """
 
 from __future__ import annotations
+
+import sys as _sys
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent.parent))  # bench/: its helpers and benchmarks
 
 import argparse
 

@@ -8,12 +8,17 @@ is the main thread, the others are Zenoh's) over the same interval. Prints the m
 hottest lines (py-spy's active samples) and the thread split, and writes them to
 ``agent_profile_<N>.json`` in the output directory (``--update-results``: ``bench/results/``).
 
-Run: ``python bench/profile_agent.py --count 6 --duration 120 --update-results`` (the run must outlast
-the window and the recording: lockstep at N = 6 runs ~4x faster than real time on a loaded 2-core
-machine).
+Run: ``python bench/investigations/profile_agent.py --count 6 --duration 120 --update-results``
+(the run must outlast the window and the recording: lockstep at N = 6 runs ~4x faster than real
+time on a loaded 2-core machine).
 """
 
 from __future__ import annotations
+
+import sys as _sys
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent.parent))  # bench/: its helpers and benchmarks
 
 import argparse
 import collections
@@ -26,11 +31,8 @@ import threading
 import time
 from pathlib import Path
 
-import psutil
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
 import bench_runtime  # a sibling script
+import psutil
 from _output import add_output_arguments, output_dir
 
 

@@ -10,11 +10,16 @@ per-neighbour bookkeeping of ``RobotAgent._drain_messages`` and ``_loop`` is tim
 work (``recv``, ``put``, its threads) is the floor both agents share and is not timed here
 (``bench/bench_runtime.py`` measures the whole).
 
-Run: ``python bench/agent_tick_costs.py --update-results`` (prints a table and writes
+Run: ``python bench/investigations/agent_tick_costs.py --update-results`` (prints a table and writes
 ``agent_tick_costs.json`` to the output directory; ``--update-results``: ``bench/results/``).
 """
 
 from __future__ import annotations
+
+import sys as _sys
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent.parent))  # bench/: its helpers and benchmarks
 
 import argparse
 import json

@@ -4,11 +4,17 @@ Checks that a code change leaves a policy's results as they were (or says where 
 they moved): for every cell file name present in both ``DIR/cells/``, the number of starts whose
 time differs, the largest difference and both medians of the ratio to the lower bound.
 
-    python bench/compare_cells.py --before docs/results/flood/eval_a docs/results/flood/eval_b \\
+    python bench/investigations/compare_cells.py \\
+        --before docs/results/flood/eval_a docs/results/flood/eval_b \\
         --after docs/results/flood/eval_recheck --out docs/results/flood/recheck.md
 """
 
 from __future__ import annotations
+
+import sys as _sys
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent.parent))  # bench/: its helpers and benchmarks
 
 import argparse
 from pathlib import Path
@@ -41,7 +47,7 @@ def main(argv: list[str] | None = None) -> int:
     lines = [
         f"Per-start times of the same cells: before = {' '.join(args.before)},",
         f"after = {' '.join(args.after)}.",
-        "Command: `python bench/compare_cells.py` (its docstring).",
+        "Command: `python bench/investigations/compare_cells.py` (its docstring).",
         "",
         "| cell | starts | starts that differ | largest difference (s) | median ratio before | after |",
         "|---|---|---|---|---|---|",

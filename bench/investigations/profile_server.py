@@ -9,10 +9,15 @@ thread's active samples in each function (inclusive: physics step, pose publishi
 writing, ...) and the thread split (``python``: the main thread; the rest: Zenoh's router), and writes
 them to ``server_profile_<N>.json`` in the output directory (``--update-results``: ``bench/results/``).
 
-Run: ``python bench/profile_server.py --count 100 --duration 20 --update-results``.
+Run: ``python bench/investigations/profile_server.py --count 100 --duration 20 --update-results``.
 """
 
 from __future__ import annotations
+
+import sys as _sys
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent.parent))  # bench/: its helpers and benchmarks
 
 import argparse
 import collections
@@ -23,11 +28,8 @@ import tempfile
 import time
 from pathlib import Path
 
-import psutil
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
 import bench_runtime  # a sibling script
+import psutil
 from _output import add_output_arguments, output_dir
 from profile_agent import thread_cpu_s
 

@@ -14,11 +14,16 @@ plus ``mec_flood`` itself. GNN target + learned steering is the shipped model; o
 is ``centralized_mec``. A robot that has never heard a neighbour holds still in the GNN-target
 forms (its flag in the message). Median / p95 ratio to the lower bound per graph, markdown.
 
-    nice -n 10 python bench/flood_n6_limit.py --model models/gnn_flood.npz --sizes 6 \\
+    nice -n 10 python bench/investigations/flood_n6_limit.py --model models/gnn_flood.npz --sizes 6 \\
         --out docs/results/flood/n6_limit.md
 """
 
 from __future__ import annotations
+
+import sys as _sys
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent.parent))  # bench/: its helpers and benchmarks
 
 import argparse
 import time
@@ -93,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     lines = [
         f"Median / p95 ratio to the lower bound over the first {args.starts} starts of each sweep cell "
         f"(`swarm.scenarios.sweep.cell_starts`, seed 0), model `{args.model}`, kinematic engine.",
-        "Command: `python bench/flood_n6_limit.py` (its docstring: what each column is).",
+        "Command: `python bench/investigations/flood_n6_limit.py` (its docstring: what each column is).",
         "",
         header,
         "|" + "---|" * (header.count("|") - 1),

@@ -2,13 +2,18 @@
 the exact oracle of ``tests/circle_oracle.py``, on random 10 um swarms (2..16 points in a 10 um square
 within 10 m of the origin); ``--base REV`` measures that commit's ``swarm/core/mec.py`` instead.
 
-    python bench/circle_twins.py --swarms 3000             # this tree
-    python bench/circle_twins.py --swarms 3000 --base b22e47c   # before the shared tolerance
+    python bench/investigations/circle_twins.py --swarms 3000             # this tree
+    python bench/investigations/circle_twins.py --swarms 3000 --base b22e47c   # before the shared tolerance
 
 Prints the count of circles more than 1.1x the exact radius, and the worst ratio.
 """
 
 from __future__ import annotations
+
+import sys as _sys
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent.parent))  # bench/: its helpers and benchmarks
 
 import argparse
 import math
@@ -19,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parent.parent.parent
 sys.path.insert(0, str(ROOT / "tests"))
 
 from circle_oracle import exact_min_radius_squared, random_tiny_swarm  # noqa: E402

@@ -2,13 +2,18 @@
 engine: success rate and median time / lower bound on the sweep's starts (``swarm.scenarios.sweep``:
 threshold 0.2 m, v_max 0.5 m/s, T = 0.05 s, hold 5 s) for a robot with ``--offset`` (default 0.2 m).
 
-    python bench/offset_baselines.py --starts 200 --offset 0.2
+    python bench/investigations/offset_baselines.py --starts 200 --offset 0.2
 
 Before the controllers steered the axle (b22e47c) they gathered the controlled points and left the axles
 up to 2 l apart: 0 % success at l = 0.2 m.
 """
 
 from __future__ import annotations
+
+import sys as _sys
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent.parent))  # bench/: its helpers and benchmarks
 
 import argparse
 
