@@ -60,7 +60,8 @@ DEFINITIONS = {  # (definition, dependencies) from ROS 2 Jazzy's common_interfac
 def key(domain: int, topic: str, ros_type: str) -> str:
     package, _, name = ros_type.split("/")
     definition, dependencies = DEFINITIONS[ros_type]
-    return f"{domain}/{topic.strip('/')}/{package}::msg::dds_::{name}_/{get_type_hash(ros_type, definition, dependencies)}"
+    type_hash = get_type_hash(ros_type, definition, dependencies)
+    return f"{domain}/{topic.strip('/')}/{package}::msg::dds_::{name}_/{type_hash}"
 
 
 class Graph:
@@ -259,7 +260,16 @@ def controller(args) -> dict:
     seen: list[dict] = []
     clock = {"t": None, "wall": time.monotonic(), "count": 0}
     lock = threading.Lock()
-    with zenoh.open(config) as session:
+    deadline = time.monotonic() + args.startup_timeout
+    while True:  # a ROS 2 node waits for its router
+        try:
+            session = zenoh.open(config)
+            break
+        except zenoh.ZError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.2)
+    with session:
         graph = Graph(session, domain, "/", "standin_controller")
         writers = []
         for i in range(n):
