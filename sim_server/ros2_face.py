@@ -62,6 +62,7 @@ class Ros2Face:
             "odom": [settings.pose_source(i) for i in range(count)],
             "cmd_vel": [settings.cmd_vel(i) for i in range(count)],
             "twists_received": 0,
+            "twists_by_robot": [0] * count,
             "twists_invalid": 0,
             "twists_without_attachment": 0,
         }
@@ -78,6 +79,7 @@ class Ros2Face:
             stats["twists_invalid"] += 1
             return
         stats["twists_received"] += 1
+        stats["twists_by_robot"][robot] += 1
         left, right = ros2.wheels_of_twist(twist[0], twist[1], self.half_axle_m)
         command = wire.Command(max(self.server._tick, 0), left, right)
         self.server._accept_command(robot, command, now_s)

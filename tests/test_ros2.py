@@ -15,6 +15,7 @@ import socket
 import struct
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -414,3 +415,104 @@ def test_ros2_agents_drive_the_ros2_sim_server(tmp_path):
     record = json.loads((tmp_path / "agents" / "agent_0.json").read_text())
     assert record["publications"][1].startswith("0/robot_0/cmd_vel/geometry_msgs::msg::dds_::Twist_/")
     assert json.loads((tmp_path / "sim" / "metrics.json").read_text())["converged"]
+
+
+@pytest.mark.runtime
+def test_acl_keeps_a_rogue_ros2_robot_to_its_own_topics(tmp_path):
+    """sim.acl with --ros2: robot 0's credentials drive robot 0 through its cmd_vel, but hear no other
+    robot's odometry and reach no other robot's cmd_vel; robots 1 and 2 are real agents."""
+    credentials = tmp_path / "cred"
+    users, per_robot = acl.write_credentials(credentials, 3)
+    scenario_file = tmp_path / "s.yaml"
+    scenario_file.write_text(
+        SCENARIO.replace("count: 6", "count: 3")
+        .replace("kind: cycle", "kind: line")
+        .replace("duration_s: 8}", "duration_s: 3, acl: true}")
+    )
+    endpoint = f"tcp/127.0.0.1:{_free_port()}"
+    sim = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "sim_server",
+            "--scenario",
+            str(scenario_file),
+            "--out",
+            str(tmp_path / "sim"),
+            "--listen",
+            endpoint,
+            "--ros2",
+            "--quiet",
+            "--users",
+            str(users),
+        ],
+        env=_env(),
+    )
+    agents = subprocess.Popen(
+        [
+            str(BIN / "robot-agent"),
+            "--robots",
+            "1-2",
+            "--connect",
+            endpoint,
+            "--ros2",
+            "--credentials",
+            per_robot,
+            "--log-dir",
+            str(tmp_path / "agents"),
+        ],
+        env=_env(),
+    )
+    settings = ros2.Ros2Settings()
+    heard: dict[str, int] = {}
+    try:
+        user, password = acl.read_credentials(per_robot, 0)
+        config = wire.session_config("client", [endpoint], settings=acl.client_settings(user, password))
+        session = None
+        for _ in range(300):
+            try:
+                session = zenoh.open(config)
+                break
+            except zenoh.ZError:
+                time.sleep(0.2)
+        assert session is not None
+        with session:
+            node = ros2.Node(session, 0, "/robot_0", "rogue")
+            own = node.publisher(settings.cmd_vel(0), ros2.TWIST)
+            forged = [
+                ros2.Publisher(
+                    session.declare_publisher(ros2.topic_key(0, settings.cmd_vel(j), ros2.TWIST)),
+                    "",
+                    bytes(16),
+                )
+                for j in (1, 2)
+            ]
+            odom = {
+                i: session.declare_subscriber(
+                    ros2.topic_key(0, settings.odom(i), ros2.ODOMETRY), zenoh.handlers.RingChannel(4096)
+                )
+                for i in range(3)
+            }
+            while sim.poll() is None:
+                for i, subscriber in odom.items():
+                    while subscriber.try_recv() is not None:
+                        heard[settings.odom(i)] = heard.get(settings.odom(i), 0) + 1
+                        if i == 0:
+                            own.put(ros2.encode_twist(0.0, 0.0))
+                            for publisher in forged:
+                                publisher.put(ros2.encode_twist(9.0, 9.0))
+                time.sleep(0.001)
+            for subscriber in odom.values():
+                subscriber.undeclare()
+            node.undeclare()
+        assert agents.wait(timeout=60) == 0
+    finally:
+        for process in (sim, agents):
+            if process.poll() is None:
+                process.kill()
+    assert sim.returncode == 0
+    stats = json.loads((tmp_path / "sim" / "server_stats.json").read_text())
+    assert stats["ticks_served"] == stats["ticks"] == 60
+    assert set(heard) == {"/robot_0/odom"} and heard["/robot_0/odom"] == 60
+    # one twist per tick from each controller: robot 0's own, none of its forged ones for 1 and 2
+    assert stats["ros2"]["twists_by_robot"] == [60, 60, 60]
