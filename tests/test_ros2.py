@@ -516,3 +516,37 @@ def test_acl_keeps_a_rogue_ros2_robot_to_its_own_topics(tmp_path):
     assert set(heard) == {"/robot_0/odom"} and heard["/robot_0/odom"] == 60
     # one twist per tick from each controller: robot 0's own, none of its forged ones for 1 and 2
     assert stats["ros2"]["twists_by_robot"] == [60, 60, 60]
+
+
+@pytest.mark.runtime
+def test_swarm_run_of_a_ros2_scenario_goes_through_odom_and_cmd_vel(tmp_path):
+    """``swarm run`` of a scenario with a ``ros2`` block: the server and the agents talk through ROS 2
+    topics only, and the run is the run without the block (same convergence, same final spread)."""
+    import yaml
+
+    shipped = ROOT / "scenarios" / "ros2" / "cycle-6.yaml"
+    plain = yaml.safe_load(shipped.read_text())
+    del plain["ros2"]
+    plain_file = tmp_path / "plain.yaml"
+    plain_file.write_text(yaml.safe_dump(plain))
+    results = {}
+    for name, scenario in (("ros2", shipped), ("plain", plain_file)):
+        done = subprocess.run(
+            [str(BIN / "swarm"), "run", str(scenario), "--out", str(tmp_path / name), "--quiet"],
+            env=_env(),
+            timeout=300,
+            capture_output=True,
+            text=True,
+        )
+        assert done.returncode == 0, done.stdout + done.stderr
+        results[name] = json.loads((tmp_path / name / "metrics.json").read_text())
+    stats = json.loads((tmp_path / "ros2" / "server_stats.json").read_text())
+    assert stats["ros2"]["twists_by_robot"] == [200] * 6 and stats["ticks_served"] == 200
+    plain_stats = json.loads((tmp_path / "plain" / "server_stats.json").read_text())
+    assert "ros2" not in plain_stats
+    record = json.loads((tmp_path / "ros2" / "logs" / "agent_2.json").read_text())
+    assert record["ros2"]["cmd_vel"] == "/robot_2/cmd_vel" and record["subscriptions"][0].startswith(
+        "0/robot_2/odom/"
+    )
+    assert results["ros2"]["convergence_time_s"] == results["plain"]["convergence_time_s"]
+    assert results["ros2"]["final_metric"] == pytest.approx(results["plain"]["final_metric"], abs=1e-3)
