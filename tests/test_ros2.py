@@ -206,6 +206,22 @@ def test_acl_rules_cover_the_ros2_keys():
     assert allows("token", own_token) and not allows("token", other_token)
 
 
+def test_bad_ros2_input_is_one_line_and_exit_2(tmp_path):
+    from swarm.scenarios.scenario import ScenarioError, parse_scenario
+
+    base = {"name": "x", "robots": {"count": 2}, "topology": {"kind": "complete"}}
+    with pytest.raises(ScenarioError, match=r"ros2\.domain_id"):
+        parse_scenario({**base, "ros2": {"domain_id": 300}})
+    with pytest.raises(ScenarioError, match=r"ros2\.pose"):
+        parse_scenario({**base, "ros2": {"pose": "gps"}})
+    from robot_agent.__main__ import main
+
+    assert main(["--robot", "0", "--scenario", "s.yaml"]) == 2  # --scenario goes with --ros2
+    assert main(["--robot", "0", "--ros2", "--domain-id", "999"]) == 2
+    (tmp_path / "s.yaml").write_text(SCENARIO)
+    assert main(["--robot", "6", "--ros2", "--scenario", str(tmp_path / "s.yaml")]) == 2  # no robot 6
+
+
 # ----------------------------------------------------------------------------- real processes
 
 
@@ -308,6 +324,7 @@ def test_agents_gather_six_ros2_robots_of_the_standin(tmp_path):
     for robot in range(6):
         record = json.loads((tmp_path / "agents" / f"agent_{robot}.json").read_text())
         assert record["exit_reason"] == "done" and record["ticks"] == 160
+        assert record["heavy_modules"] == []  # no torch, pybullet or numba on a robot's host
 
 
 @pytest.mark.runtime
