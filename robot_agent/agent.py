@@ -46,6 +46,10 @@ tag, reading every reply: ``config_source``, ``config_rejected``) and tags what 
 a neighbour whose token is up but whose message missed ``HUNG_AFTER_DEADLINES`` neighbour deadlines in
 a row is not waited for until it talks again (``neighbour_events``): a token alone cannot stall it.
 
+Where the pose comes from and where the command goes are three methods (``_open_pose``,
+``_decode_pose``, ``_declare_command``): the project's keys here, ROS 2 topics in
+:mod:`robot_agent.ros2` (``robot-agent --ros2``).
+
 The agent holds the token ``swarm/<run>/alive/agent/<i>``, exits cleanly (session closed) on SIGTERM
 or SIGINT and when the sim's token ``swarm/<run>/alive/sim`` goes away (after the run's last tick at
 once, else when it stays away ``sim.server_lost_s``: a brief partition is survived), and records what it
