@@ -111,7 +111,41 @@ def build_parser() -> argparse.ArgumentParser:
         help="add this to the agents' niceness before they start (0-19; the runner gives 5: the sim server,"
         " on the critical path of every tick, then wins a contended core)",
     )
+    ros = parser.add_argument_group("ROS 2 robots (docs/ros2.md; needs the ros2 extra: rosbags)")
+    ros.add_argument(
+        "--ros2",
+        action="store_true",
+        help="the robot is a ROS 2 robot: read its pose from <ns>/odom (nav_msgs/Odometry) and publish "
+        "geometry_msgs/Twist on <ns>/cmd_vel, as rmw_zenoh maps them (scenario key ros2)",
+    )
+    ros.add_argument(
+        "--scenario",
+        help="with --ros2: take the configuration from this scenario file (no sim server; the agent ends "
+        "after sim.duration_s)",
+    )
+    ros.add_argument("--model", help="with --scenario: the gnn policy file (default: the scenario's)")
+    ros.add_argument("--domain-id", type=int, help="with --ros2: ROS_DOMAIN_ID (default: the scenario's, 0)")
+    ros.add_argument("--namespace", help="with --ros2: namespace, {i} the robot id (default: robot_{i})")
     return parser
+
+
+def ros2_overrides(args: argparse.Namespace) -> dict:
+    """The ``ros2`` settings given on the command line (ValueError: bad input)."""
+    if not args.ros2:
+        if args.scenario or args.model or args.domain_id is not None or args.namespace:
+            raise ValueError("--scenario, --model, --domain-id and --namespace go with --ros2")
+        return {}
+    overrides: dict = {}
+    if args.domain_id is not None:
+        overrides["domain_id"] = args.domain_id
+    if args.namespace is not None:
+        overrides["namespace"] = args.namespace
+    from swarm.runtime import ros2
+
+    settings = ros2.Ros2Settings(**overrides)
+    ros2.check_domain_id(settings.domain_id)
+    settings.cmd_vel(0)  # a namespace template that formats
+    return overrides
 
 
 def zenoh_settings(robot: int, args: argparse.Namespace) -> dict:
@@ -154,7 +188,13 @@ def run_one(robot: int, args: argparse.Namespace, settings: dict) -> int:
         log_dir=Path(args.log_dir) if args.log_dir else None,
         zenoh_settings=settings,
     )
-    agent = RobotAgent(options)
+    agent: RobotAgent
+    if args.ros2:
+        from robot_agent.ros2 import Ros2RobotAgent
+
+        agent = Ros2RobotAgent(options, args.ros2_overrides, args.local_configs.get(robot))
+    else:
+        agent = RobotAgent(options)
     signal.signal(signal.SIGTERM, agent.request_stop)
     signal.signal(signal.SIGINT, agent.request_stop)
     code = agent.run()
@@ -253,13 +293,20 @@ def main(argv: list[str] | None = None) -> int:
         if args.user and args.password is None:
             raise ValueError("--user needs --password")
         settings = {robot: zenoh_settings(robot, args) for robot in robots}
+        args.ros2_overrides = ros2_overrides(args)
+        args.local_configs = {}
+        if args.scenario:
+            from robot_agent.ros2 import local_config
+
+            args.run = args.run or "run"
+            args.local_configs = {r: local_config(args.scenario, r, args.run, args.model) for r in robots}
         # endpoints of the right form, before any agent starts (each opens its own session)
         wire.session_config(args.zenoh_mode, args.connect or [], (), args.lease_ms, settings[robots[0]])
         if not 0 <= args.nice <= 19:
             raise ValueError(f"--nice: {args.nice} is not within 0-19")
         if args.log_dir:
             Path(args.log_dir).mkdir(parents=True, exist_ok=True)
-    except (ValueError, OSError, zenoh.ZError) as error:  # CredentialsError is a ValueError
+    except (ValueError, KeyError, OSError, zenoh.ZError) as error:  # CredentialsError, ScenarioError too
         print(f"robot-agent: error: {one_line(error)}", file=sys.stderr)
         return ExitCode.BAD_INPUT
     if args.nice:

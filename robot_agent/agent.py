@@ -46,6 +46,10 @@ tag, reading every reply: ``config_source``, ``config_rejected``) and tags what 
 a neighbour whose token is up but whose message missed ``HUNG_AFTER_DEADLINES`` neighbour deadlines in
 a row is not waited for until it talks again (``neighbour_events``): a token alone cannot stall it.
 
+Where the pose comes from and where the command goes are three methods (``_open_pose``,
+``_decode_pose``, ``_declare_command``): the project's keys here, ROS 2 topics in
+:mod:`robot_agent.ros2` (``robot-agent --ros2``).
+
 The agent holds the token ``swarm/<run>/alive/agent/<i>``, exits cleanly (session closed) on SIGTERM
 or SIGINT and when the sim's token ``swarm/<run>/alive/sim`` goes away (after the run's last tick at
 once, else when it stays away ``sim.server_lost_s``: a brief partition is survived), and records what it
@@ -169,6 +173,25 @@ class Inlet:
         self.subscriber.undeclare()
 
 
+class CommandSink:
+    """The project's command stream: a :func:`wire.encode_command` per tick, tagged with the run key."""
+
+    __slots__ = ("key", "publisher", "run_key")
+
+    def __init__(self, publisher: zenoh.Publisher, key: str, run_key: wire.RunKey | None):
+        self.publisher, self.key, self.run_key = publisher, key, run_key
+
+    def send(self, tick: int, wheels: Sequence[float]) -> None:
+        payload = wire.encode_command(tick, wheels)
+        if self.run_key is None:
+            self.publisher.put(payload)
+        else:
+            self.publisher.put(payload, attachment=self.run_key.tag(self.key, payload))
+
+    def undeclare(self) -> None:
+        self.publisher.undeclare()
+
+
 @dataclass
 class AgentOptions:
     robot: int
@@ -258,6 +281,8 @@ class RobotAgent:
         self._keep_ticks = 1  # how far back a message may still be used: largest delay + max age
         self._inbox_ticks = INBOX_TICKS
         self._dim = 0
+        self._pose_tagged = True  # poses carry the run key's tag (not a ROS 2 robot's odometry)
+        self._ticks_to_run: int | None = None  # ticks after which the agent ends (None: when the sim goes)
         self.config: wire.AgentConfig | None = None
         self.record: dict = {
             "robot": self.robot,
@@ -407,7 +432,8 @@ class RobotAgent:
         if several are queued; one dated beyond it only once a second pose confirms it:
         swarm.runtime.ticks)."""
         counters, window, newest = self.counters, self._window, None
-        run_key, pose_key = self._run_key, self._pose_key
+        run_key = self._run_key if self._pose_tagged else None
+        pose_key, decode_pose = self._pose_key, self._decode_pose
         while newest is None:
             taken = self._recv(inlet)
             while taken is not None:
@@ -416,7 +442,7 @@ class RobotAgent:
                 if run_key is not None and not run_key.check(pose_key, payload, tag):
                     counters.poses_unauthenticated += 1
                     continue
-                pose = wire.decode_pose(payload)
+                pose = decode_pose(payload)
                 if pose is None:
                     counters.poses_invalid += 1
                 else:
@@ -553,6 +579,20 @@ class RobotAgent:
             time.sleep(0.05)  # no queryable yet: the sim is still starting
         return None
 
+    # ------------------------------------------------------------------ where poses and commands go
+    def _open_pose(self, session: zenoh.Session, keys: wire.Keys, entities: list[Any]) -> Inlet:
+        """The inlet of this robot's pose (``robot/<i>/pose``; ``robot_agent.ros2``: its odometry)."""
+        self._pose_key = keys.pose(self.robot)
+        return Inlet(session, self._pose_key, POSE_RING)
+
+    def _decode_pose(self, payload: bytes) -> wire.Pose | None:
+        return wire.decode_pose(payload)
+
+    def _declare_command(self, session: zenoh.Session, keys: wire.Keys, options: dict) -> CommandSink:
+        """Where this robot's wheel commands go (``robot/<i>/cmd``; ``robot_agent.ros2``: cmd_vel)."""
+        key = keys.cmd(self.robot)
+        return CommandSink(session.declare_publisher(key, **options), key, self._run_key)
+
     def _config_genuine(self, sample: zenoh.Sample) -> bool:
         """Whether a config reply carries the run key's tag (always, with authentication off);
         counts the others in ``config_rejected``."""
@@ -638,11 +678,10 @@ class RobotAgent:
         )
         ring = zenoh.handlers.RingChannel
         entities: list[Any] = [sim_sub]
-        pose_inlet = self._pose_inlet = Inlet(session, keys.pose(self.robot), POSE_RING)
-        self._pose_key = keys.pose(self.robot)
+        pose_inlet = self._pose_inlet = self._open_pose(session, keys, entities)
         self._msg_keys = {j: keys.msg(j) for j in config.neighbours}
         entities.append(pose_inlet)  # undeclared last: it counts what is unread first
-        record["subscriptions"].append(keys.pose(self.robot))
+        record["subscriptions"].append(self._pose_key)
         for j in config.neighbours:
             self._inbox[j] = {}
             self._msg_inlets[j] = inlet = Inlet(session, keys.msg(j), MESSAGE_RING)
@@ -656,8 +695,8 @@ class RobotAgent:
             record["liveliness_subscriptions"].append(keys.alive_agent(j))
         options = wire.publisher_options(config.mode)
         msg_pub = session.declare_publisher(keys.msg(self.robot), **options)
-        cmd_pub = session.declare_publisher(keys.cmd(self.robot), **options)
-        record["publications"] += [keys.msg(self.robot), keys.cmd(self.robot)]
+        cmd_pub = self._declare_command(session, keys, options)
+        record["publications"] += [keys.msg(self.robot), cmd_pub.key]
         entities += [msg_pub, cmd_pub]
         # The token comes last: once the sim sees it, every declaration above is in place.
         entities.append(session.liveliness().declare_token(keys.alive_agent(self.robot)))
@@ -689,7 +728,7 @@ class RobotAgent:
         boxes = [(j, self._inbox[j]) for j in neighbours]  # each neighbour's inbox, kept for the run
         run_key = self._run_key
         assert self.keys is not None
-        msg_key, cmd_key = self.keys.msg(me), self.keys.cmd(me)
+        msg_key = self.keys.msg(me)
         while True:
             pose = self._next_pose(pose_inlet)
             if pose is None:
@@ -741,16 +780,17 @@ class RobotAgent:
                 u_world, message = controller.act_one(pose.array(), inbox, np.array(weights))
             wheels = wheels_one(u_world, pose.theta_rad, params)
             message_payload = wire.encode_message(tick, message)
-            command_payload = wire.encode_command(tick, wheels)
             if run_key is None:
                 msg_pub.put(message_payload)
-                cmd_pub.put(command_payload)
             else:
                 msg_pub.put(message_payload, attachment=run_key.tag(msg_key, message_payload))
-                cmd_pub.put(command_payload, attachment=run_key.tag(cmd_key, command_payload))
+            cmd_pub.send(tick, wheels)
             counters.compute_s.append(time.perf_counter() - compute_start_s)
             counters.ticks += 1
             counters.commands_sent += 1
+            if self._ticks_to_run is not None and tick - self._first_tick + 1 >= self._ticks_to_run:
+                self.record["exit_reason"] = "done"  # no sim server: the scenario's duration is over
+                return EXIT_DONE
 
     def _write_record(self) -> None:
         counters, window = self.counters, self._window

@@ -76,6 +76,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--die-with-parent", action="store_true", help="exit when the parent process dies")
     parser.add_argument("--quiet", action="store_true")
     parser.add_argument(
+        "--ros2",
+        action="store_true",
+        help="also be ROS 2 robots: publish each robot's <ns>/odom and /clock, obey <ns>/cmd_vel, as "
+        "rmw_zenoh maps them (scenario key ros2; docs/ros2.md; needs the ros2 extra: rosbags)",
+    )
+    parser.add_argument(
         "--no-report",
         action="store_true",
         help="do not write metrics.json and the plots at the end, nor print the summary (swarm run does it)",
@@ -149,6 +155,7 @@ def main(argv: list[str] | None = None) -> int:
             quiet=args.quiet,
             zenoh_settings=settings,
             run_key=run_key,
+            ros2=args.ros2,
         )
         # endpoints and settings of the right form, before anything starts (serve() opens the session)
         wire.session_config(options.zenoh_mode, options.connect, options.listen, args.lease_ms, settings)
@@ -182,7 +189,13 @@ def acl_settings(scenario, args: argparse.Namespace) -> dict:
     users = Path(args.users)
     if not users.is_file():
         raise ValueError(f"{users}: no such users file")
-    return acl.router_settings(wire.Keys(args.run), scenario.adjacency(), users.resolve())
+    ros2_keys = None
+    if args.ros2:
+        from swarm.runtime import ros2
+
+        settings = ros2.Ros2Settings.from_scenario(scenario.model_dump(mode="json"))
+        ros2_keys = [ros2.acl_key_exprs(settings, i) for i in range(scenario.robots.count)]
+    return acl.router_settings(wire.Keys(args.run), scenario.adjacency(), users.resolve(), ros2_keys)
 
 
 if __name__ == "__main__":

@@ -57,6 +57,7 @@ from swarm.core.exit_codes import ExitCode
 from swarm.core.faults import tick_of
 from swarm.core.robot import saturate_wheels
 from swarm.runtime import wire
+from swarm.runtime.agent_config import agent_configs
 from swarm.scenarios.results import TrajectoryWriter, prepare_results_dir
 from swarm.scenarios.scenario import Scenario
 
@@ -104,34 +105,7 @@ class ServerOptions:
     quiet: bool = False
     zenoh_settings: dict = field(default_factory=dict)  # more session settings (swarm.runtime.acl)
     run_key: wire.RunKey | None = None  # tags poses and configs, checks commands (None: off)
-
-
-def agent_configs(scenario: Scenario, run: str, policy: bytes | None) -> list[wire.AgentConfig]:
-    """Each robot's configuration: its neighbours (and link weights) on the scenario's fixed graph."""
-    adjacency = scenario.adjacency()
-    if adjacency is None:
-        raise ValueError("disk topologies are not supported by the distributed runtime yet")
-    common: dict[str, Any] = {
-        "run": run,
-        "robot_count": scenario.robots.count,
-        "controller": scenario.controller.kind,
-        "gain": scenario.controller.gain,
-        "robot_params": scenario.robot.model_dump(),
-        "mode": scenario.sim.mode,
-        "control_period_s": scenario.sim.control_period_s,
-        "neighbour_deadline_s": scenario.sim.neighbour_deadline_s,
-        "scenario": scenario.model_dump(mode="json"),
-        "policy": policy,
-    }
-    configs = []
-    for i, row in enumerate(adjacency):
-        neighbours = tuple(int(j) for j in np.flatnonzero(row))
-        configs.append(
-            wire.AgentConfig(
-                robot=i, neighbours=neighbours, weights=tuple(float(row[j]) for j in neighbours), **common
-            )
-        )
-    return configs
+    ros2: bool = False  # also a ROS 2 face: odom, cmd_vel, /clock (sim_server.ros2_face, docs/ros2.md)
 
 
 def _percentiles_ms(samples_s: list[float]) -> dict[str, float | int | None]:
@@ -195,6 +169,8 @@ class SimServer:
         self._stop = False
         self._tick = -1
         self._alive: set[int] = set()
+        self._tokens: dict[int, set[str]] = {}  # robot -> the liveliness tokens of its controller now up
+        self.ros2_face: Any = None  # sim_server.ros2_face.Ros2Face with --ros2
         self._expected: set[int] = set()  # live agents when this tick's poses went out: waited for
         self._seen: set[int] = set()  # robots whose agent was alive at some point
         self._started_s = time.perf_counter()
@@ -203,6 +179,7 @@ class SimServer:
         self._cmds: dict[int, tuple[wire.Command, float]] = {}  # lockstep: this tick's; realtime: latest
         self._fresh: set[int] = set()  # robots whose command of the current tick is in
         self._published_at_s: dict[int, float] = {}
+        self.applied_wheels = np.zeros((self.count, 2))  # saturated wheel speeds applied now (m/s)
         self._encoder = wire.PoseEncoder(self.count)  # pose payloads packed into buffers made once
         self._timing = {"publish": [0.0, 0.0], "trajectory": [0.0, 0.0]}  # part -> [wall s, CPU s]
         self._newest_cmd_tick: dict[int, int] = {}  # robot -> tick of the newest command accepted
@@ -241,7 +218,10 @@ class SimServer:
             with self._cond:
                 self.stats["unauthenticated_commands"] += 1
             return
-        cmd = wire.decode_command(payload)
+        self._accept_command(robot, wire.decode_command(payload), now_s)
+
+    def _accept_command(self, robot: int | None, cmd: wire.Command | None, now_s: float) -> None:
+        """A decoded command of ``robot`` (None: invalid) from the project's keys or ROS 2's cmd_vel."""
         with self._cond:
             if cmd is None or robot is None:
                 self.stats["invalid_commands"] += 1
@@ -276,8 +256,18 @@ class SimServer:
         robot = self.keys.robot_of(str(sample.key_expr), "alive")
         if robot is None or robot >= self.count:
             return
+        self._agent_token(robot, str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
+
+    def _agent_token(self, robot: int, token: str, put: bool) -> None:
+        """A token of robot ``robot``'s controller came (``put``) or went: its agent's, or with
+        ``--ros2`` a ROS 2 publisher's on its cmd_vel. The controller is alive while any is up."""
         with self._cond:
-            if sample.kind == zenoh.SampleKind.PUT:
+            tokens = self._tokens.setdefault(robot, set())
+            was_up = bool(tokens)
+            (tokens.add if put else tokens.discard)(token)
+            if bool(tokens) == was_up:
+                return
+            if put:
                 event = "back" if robot in self._seen else "alive"
                 if event == "back":
                     self._back_ticks.setdefault(robot, []).append(self._tick)
@@ -361,6 +351,10 @@ class SimServer:
                 publishers = [
                     session.declare_publisher(self.keys.pose(i), **stream) for i in range(self.count)
                 ]
+                if options.ros2:
+                    from sim_server.ros2_face import Ros2Face
+
+                    self.ros2_face = Ros2Face(self, session, stream)
                 self._log(f"run {options.run}: {self.count} robots, listening on {options.listen}")
                 with self._cond:
                     everyone = self._wait(
@@ -383,6 +377,8 @@ class SimServer:
                     outcome = loop(world, publishers)
                 for entity in (alive_sub, cmd_sub, queryable, token, *publishers):
                     entity.undeclare()
+                if self.ros2_face is not None:
+                    self.ros2_face.undeclare()
         finally:
             world.close()
             self.stats["wall_s"] = time.perf_counter() - started_s
@@ -409,6 +405,8 @@ class SimServer:
         else:
             for publisher, key, payload in zip(publishers, self._pose_keys, payloads, strict=True):
                 publisher.put(payload, attachment=run_key.tag(key, payload))
+        if self.ros2_face is not None:
+            self.ros2_face.publish(time_s, poses)
         self._add_time("publish", start_s, start_cpu_s)
 
     def _add_time(self, part: str, start_s: float, start_cpu_s: float) -> None:
@@ -432,6 +430,7 @@ class SimServer:
         trajectory.write(tick, tick * self.dt_s, poses, wheels=wheels.tolist())
         self._add_time("trajectory", start_s, start_cpu_s)
         world.set_wheel_speeds(wheels)
+        self.applied_wheels = wheels
         start_s, start_cpu_s = time.perf_counter(), time.thread_time()
         world.step(self.dt_s)
         return time.perf_counter() - start_s, time.thread_time() - start_cpu_s

@@ -55,10 +55,16 @@ def user_of(robot: int) -> str:
     return f"robot-{int(robot)}"
 
 
-def robot_rules(keys: Keys, robot: int, neighbours: Sequence[int]) -> list[dict[str, Any]]:
-    """The allow rules of one robot's agent (ids prefixed with its user name)."""
+def robot_rules(
+    keys: Keys, robot: int, neighbours: Sequence[int], ros2_keys: dict[str, list[str]] | None = None
+) -> list[dict[str, Any]]:
+    """The allow rules of one robot's agent (ids prefixed with its user name). ``ros2_keys``
+    (``swarm.runtime.ros2.acl_key_exprs``, a sim server with ``--ros2``): its ROS 2 topics too, the pose
+    it hears (``heard``), its ``cmd_vel`` (``published``) and the liveliness tokens of its own namespace
+    (``tokens``)."""
     user = user_of(robot)
-    heard = [keys.pose(robot), *(keys.msg(j) for j in neighbours)]
+    ros = ros2_keys or {"heard": [], "published": [], "tokens": []}
+    heard = [keys.pose(robot), *(keys.msg(j) for j in neighbours), *ros["heard"]]
     watched = [keys.alive_sim, *(keys.alive_agent(j) for j in neighbours)]
     configs = [keys.config(robot), Keys.any_run_config(robot)]
 
@@ -74,14 +80,14 @@ def robot_rules(keys: Keys, robot: int, neighbours: Sequence[int]) -> list[dict[
     return [
         rule("subscribe", "ingress", ["declare_subscriber"], heard),
         rule("receive", "egress", ["put"], heard),
-        rule("publish", "ingress", ["put"], [keys.cmd(robot), keys.msg(robot)]),
+        rule("publish", "ingress", ["put"], [keys.cmd(robot), keys.msg(robot), *ros["published"]]),
         rule(
             "publish-matching",
             "egress",
             ["declare_subscriber"],
-            [keys.all_cmds, keys.cmd(robot), keys.msg(robot)],
+            [keys.all_cmds, keys.cmd(robot), keys.msg(robot), *ros["published"]],
         ),
-        rule("token", "ingress", ["liveliness_token"], [keys.alive_agent(robot)]),
+        rule("token", "ingress", ["liveliness_token"], [keys.alive_agent(robot), *ros["tokens"]]),
         rule("watch", "ingress", ["declare_liveliness_subscriber", "liveliness_query"], watched),
         rule("watch-receive", "egress", ["liveliness_token"], watched),
         rule("config", "ingress", ["query"], configs),
@@ -89,13 +95,15 @@ def robot_rules(keys: Keys, robot: int, neighbours: Sequence[int]) -> list[dict[
     ]
 
 
-def access_control(keys: Keys, adjacency: Sequence[Sequence[float]]) -> dict[str, Any]:
+def access_control(
+    keys: Keys, adjacency: Sequence[Sequence[float]], ros2_keys: Sequence[dict[str, list[str]]] | None = None
+) -> dict[str, Any]:
     """Zenoh's ``access_control`` block for a run on a fixed graph: default deny, one subject (a
-    user name) and one policy per robot."""
+    user name) and one policy per robot (``ros2_keys[i]``: robot i's ROS 2 keys, :func:`robot_rules`)."""
     rules, subjects, policies = [], [], []
     for robot, row in enumerate(adjacency):
         neighbours = [j for j, weight in enumerate(row) if weight and j != robot]
-        own = robot_rules(keys, robot, neighbours)
+        own = robot_rules(keys, robot, neighbours, None if ros2_keys is None else ros2_keys[robot])
         rules += own
         subjects.append({"id": user_of(robot), "usernames": [user_of(robot)]})
         policies.append(
@@ -110,11 +118,16 @@ def access_control(keys: Keys, adjacency: Sequence[Sequence[float]]) -> dict[str
     }
 
 
-def router_settings(keys: Keys, adjacency: Sequence[Sequence[float]], users_file: Path) -> dict[str, Any]:
+def router_settings(
+    keys: Keys,
+    adjacency: Sequence[Sequence[float]],
+    users_file: Path,
+    ros2_keys: Sequence[dict[str, list[str]]] | None = None,
+) -> dict[str, Any]:
     """Settings of the sim server's router session (for ``wire.session_config``)."""
     return {
         "transport/auth/usrpwd": {"dictionary_file": str(users_file)},
-        "access_control": access_control(keys, adjacency),
+        "access_control": access_control(keys, adjacency, ros2_keys),
     }
 
 

@@ -384,6 +384,9 @@ def _run_distributed(
         users, per_robot = write_credentials(out_dir / "credentials", count)
         server_cmd += ["--users", str(users)]
         common += ["--credentials", per_robot]
+    if scenario.ros2 is not None and not scenario.controller.central:  # robots as ROS 2 robots: docs/ros2.md
+        server_cmd += ["--ros2"]
+        common += ["--ros2"]
     if scenario.controller.central:
         controller_name, controller_cmd = "central", [python, "-m", "robot_agent.central", *common]
     else:

@@ -328,6 +328,18 @@ class SuccessSpec(_Strict):
         return float(self.threshold)
 
 
+class Ros2Spec(_Strict):
+    """``ros2``: how the robots appear as ROS 2 topics (``robot-agent --ros2``, ``sim_server --ros2``;
+    docs/ros2.md). ``namespace``: a template, ``{i}`` the robot id."""
+
+    domain_id: int = Field(0, ge=0, le=232, description="ROS_DOMAIN_ID of the robots")
+    namespace: str = Field("robot_{i}", pattern=r"^/?[A-Za-z_{][A-Za-z0-9_{}/]*$")
+    pose: Literal["odometry", "pose_stamped"] = Field(
+        "odometry", description="an agent's pose: nav_msgs/Odometry (<ns>/odom) or PoseStamped (mocap)"
+    )
+    pose_topic: str | None = Field(None, description="topic of the pose (default <ns>/odom or <ns>/pose)")
+
+
 class Scenario(_Strict):
     name: str
     description: str = ""
@@ -343,6 +355,7 @@ class Scenario(_Strict):
         description="seed of the packet-loss draws (swarm/core/faults.py): same seed, same packets lost",
     )
     success: SuccessSpec = Field(default_factory=SuccessSpec)
+    ros2: Ros2Spec | None = None
 
     @model_validator(mode="after")
     def _counts_agree(self) -> Scenario:
