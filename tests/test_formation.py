@@ -161,15 +161,27 @@ def test_the_baseline_ends_with_the_experts_assignment():
 
 
 def test_decentralized_robot_zero_ignores_robots_beyond_k_hops_for_k_ticks():
+    """Robot 0's state (its message: everything it knows) and pose through tick k do not depend on robots
+    more than k hops away on a line; with them moved, robot 0's message differs later."""
     count, hops = 8, 4
     rng = np.random.default_rng(11)
     section = FormationSection(slots={"circle": {"radius_m": 1.5}})
     poses = np.concatenate([rng.uniform(-3, 3, (1, count, 2)), rng.uniform(-np.pi, np.pi, (1, count, 1))], -1)
     moved = poses.copy()
     moved[0, hops + 1 :, :2] += 5.0  # robots more than `hops` hops from robot 0 on the line
-    runs = [
-        _run(CaptFlood, p, section, graphs.line(count), seconds=0.05 * (hops + 1), robot_count=count)
-        for p in (poses, moved)
-    ]
-    # robot 0 acts at tick k on what it knows at tick k (k hops); its pose of tick k+1 follows
-    np.testing.assert_array_equal(runs[0][: hops + 2, 0, 0], runs[1][: hops + 2, 0, 0])
+    robot = RobotParams()
+    records = []
+    for start in (poses, moved):
+        sim = KinematicSim(
+            robot, CaptFlood(robot, 0.05, section, count), 0.05, start, adjacency=graphs.line(count)
+        )
+        messages, robot_poses = [], [sim.poses[0, 0].copy()]
+        for _ in range(count + 1):
+            sim.step()
+            messages.append(sim.inbox[0, 0].copy())  # robot 0's message of the tick just acted
+            robot_poses.append(sim.poses[0, 0].copy())
+        records.append((np.array(messages), np.array(robot_poses)))
+    (messages, robot_poses), (moved_messages, moved_poses) = records
+    np.testing.assert_array_equal(messages[: hops + 1], moved_messages[: hops + 1])  # ticks 0..k
+    np.testing.assert_array_equal(robot_poses[: hops + 2], moved_poses[: hops + 2])  # acted on ticks 0..k
+    assert not np.array_equal(messages[hops + 1], moved_messages[hops + 1])  # tick k+1: robot k+1 heard of
