@@ -185,3 +185,32 @@ def test_decentralized_robot_zero_ignores_robots_beyond_k_hops_for_k_ticks():
     np.testing.assert_array_equal(messages[: hops + 1], moved_messages[: hops + 1])  # ticks 0..k
     np.testing.assert_array_equal(robot_poses[: hops + 2], moved_poses[: hops + 2])  # acted on ticks 0..k
     assert not np.array_equal(messages[hops + 1], moved_messages[hops + 1])  # tick k+1: robot k+1 heard of
+
+
+@pytest.mark.parametrize("graph", ["line", "cycle", "complete"])
+def test_the_per_robot_baseline_computes_what_the_batched_one_computes(graph):
+    """``OnboardCaptFlood``, one instance per robot keeping its own messages, fed the engine's poses,
+    against ``CaptFlood`` in ``KinematicSim``: the same commands and messages, bit for bit."""
+    from swarm.sim.formation_onboard import OnboardCaptFlood
+
+    count = 7
+    rng = np.random.default_rng(5)
+    section = FormationSection(slots={"line": {"spacing_m": 0.6}})
+    poses = np.concatenate([rng.uniform(-3, 3, (1, count, 2)), rng.uniform(-np.pi, np.pi, (1, count, 1))], -1)
+    adjacency = {"line": graphs.line, "cycle": graphs.cycle, "complete": graphs.complete}[graph](count)
+    robot = RobotParams()
+    sim = KinematicSim(robot, CaptFlood(robot, 0.05, section, count), 0.05, poses, adjacency=adjacency)
+    robots = [OnboardCaptFlood(robot, 0.05, section, count, i) for i in range(count)]
+    sent = None
+    for _ in range(3 * count):
+        now = sim.poses[0].copy()
+        outputs = []
+        for i, onboard in enumerate(robots):
+            heard = [] if sent is None else [sent[j] for j in np.flatnonzero(adjacency[i])]
+            messages = np.array(heard).reshape(len(heard), 3 * count)
+            outputs.append(onboard.act_one(now[i], messages, None))
+        u_world = sim.act()
+        np.testing.assert_array_equal(u_world[0], np.array([u for u, _ in outputs]))
+        sent = np.array([message for _, message in outputs])
+        np.testing.assert_array_equal(sim.inbox[0], sent)
+        sim.move(u_world)
