@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -214,3 +215,28 @@ def test_the_per_robot_baseline_computes_what_the_batched_one_computes(graph):
         sent = np.array([message for _, message in outputs])
         np.testing.assert_array_equal(sim.inbox[0], sent)
         sim.move(u_world)
+
+
+@pytest.mark.runtime
+def test_swarm_run_and_report_of_a_formation_scenario(tmp_path):
+    """``swarm run --engine kinematic`` of a committed scenario: exit 0, the task's metrics and
+    pictures; ``swarm report`` re-creates the same metrics from the trajectory; an unreachable
+    formation (40 s too short) exits 1; the pybullet engine refuses the task (exit 2)."""
+    import json
+
+    from swarm.cli import main
+
+    scenario = Path(__file__).resolve().parents[1] / "scenarios" / "formation" / "cycle-capt_flood.yaml"
+    out = tmp_path / "run"
+    assert main(["run", str(scenario), "--out", str(out), "--quiet"]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["task"] == "formation" and metrics["converged"] and metrics["conflicts"] == 0
+    assert metrics["ratio_to_lower_bound"] >= 1.0
+    assert (out / "formation.png").is_file() and (out / "convergence.png").is_file()
+    (out / "metrics.json").unlink()
+    assert main(["report", str(out), "--quiet"]) == 0
+    again = json.loads((out / "metrics.json").read_text())
+    assert {key: again[key] for key in metrics} == metrics
+    short = tmp_path / "short"
+    assert main(["run", str(scenario), "--out", str(short), "--quiet", "--duration", "2"]) == 1
+    assert main(["run", str(scenario), "--out", str(tmp_path / "pb"), "--quiet", "--engine", "pybullet"]) == 2

@@ -23,7 +23,6 @@ from pathlib import Path
 import numpy as np
 
 from swarm.core import graphs, metrics
-from swarm.scenarios.report import write_pictures
 from swarm.scenarios.scenario import Scenario, dump_scenario
 
 
@@ -278,7 +277,9 @@ def report(out_dir: Path, partial: str | None = None) -> dict:
     if adjacency is None:
         assert scenario.topology.radius_m is not None  # no fixed graph: a disk graph
         adjacency = graphs.disk(poses[-1, :, :2], scenario.topology.radius_m)
-    outcome = summarize(scenario, times_s, poses, adjacency)
+    from swarm.scenarios.task_report import task_outcome, task_pictures
+
+    outcome = task_outcome(scenario, times_s, poses, adjacency)  # rendezvous: summarize
     try:
         previous = json.loads((out_dir / "metrics.json").read_text())
     except (OSError, ValueError):
@@ -302,5 +303,5 @@ def report(out_dir: Path, partial: str | None = None) -> dict:
                 records[int(record_path.stem.split("_")[1])] = json.loads(record_path.read_text())
         add_fault_results(outcome, scenario, out_dir, records, times_s, poses)
     write_metrics(out_dir, outcome)
-    write_pictures(out_dir, scenario, times_s, poses, outcome)
+    task_pictures(out_dir, scenario, times_s, poses, outcome)  # rendezvous: write_pictures
     return outcome
