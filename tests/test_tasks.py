@@ -62,6 +62,11 @@ def test_every_controller_of_a_task_validates_and_others_are_refused(name):
 def test_bad_task_sections_get_one_line_naming_the_key():
     cases = [
         ({"kind": "flocking"}, "task: Input should be 'rendezvous' or 'formation'"),
+        ("formation", "task.slots: required key is missing"),
+        (
+            {"kind": "formation", "slots": {"circle": {"radius_m": -1}}},
+            "task.slots.circle.radius_m: Input should be",
+        ),
         (
             {"kind": "formation", "slots": {"circle": {"radius_m": 1.0}}, "tolerance_m": 0.6},
             "task.tolerance_m: 0.6 m is not under half the smallest slot spacing 1 m",

@@ -486,6 +486,8 @@ def fixed_adjacency(topology: TopologySpec, count: int, seed: int | None = None)
 
 
 def _location(loc: tuple) -> str:
+    if len(loc) > 1 and loc[0] == "task" and loc[1] in tasks.names():  # the union's tag: task.slots
+        loc = (loc[0], *loc[2:])
     parts: list[str] = []
     for item in loc:
         if isinstance(item, int):
