@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from swarm.core import graphs, tasks, topologies
+from swarm.core import graphs, topologies
 from swarm.core.experts import centralized_mec_velocity, complete_consensus_velocity
 from swarm.core.faults import FAULT_KINDS, LINK_FAULTS, PROCESS_FAULTS, LinkFaults, select_message
 from swarm.core.faults import message_max_age_ticks as max_age_of
@@ -90,7 +90,7 @@ def _model_files() -> dict[str, Path]:
 def _variants() -> list[tuple[str, Path | None]]:
     variants: list[tuple[str, Path | None]] = []
     for name, kind in CONTROLLER_KINDS.items():
-        if name not in tasks.get("rendezvous").controllers:
+        if kind.task != "rendezvous":
             continue  # another task's kinds (tests/test_formation.py): no per-robot forms yet
         if "model" in kind.options:
             variants += [(name, path) for path in _model_files().values()]

@@ -34,7 +34,9 @@ def test_every_task_names_what_a_run_needs(name):
     )
     assert task.experts and task.baselines, "an expert and a decentralized baseline"
     for kind in task.controllers:
-        assert kind in CONTROLLER_KINDS, kind
+        assert CONTROLLER_KINDS[kind].task == name, kind
+    others = {kind for kind, entry in CONTROLLER_KINDS.items() if entry.task == name} - set(task.controllers)
+    assert not others, f"controller kinds of task {name} that its entry does not list"
     for kind in task.experts:
         assert CONTROLLER_KINDS[kind].central, f"{kind}: an expert of {name} is centralized"
     assert task.bound in ("lower_bound", "reference")
@@ -50,7 +52,7 @@ def test_every_task_names_what_a_run_needs(name):
 def test_every_controller_of_a_task_validates_and_others_are_refused(name):
     for kind in CONTROLLER_KINDS:
         data = {**BASE, "task": SECTIONS[name], "controller": {"kind": kind}}
-        if kind in tasks.get(name).controllers:
+        if CONTROLLER_KINDS[kind].task == name:
             assert parse_scenario(data).controller.kind == kind
         else:
             with pytest.raises(

@@ -364,11 +364,12 @@ class Scenario(_Strict):
         """The controller does the task; a formation has one slot per robot, tolerance under half
         their spacing (so that success is the bottleneck test, ``swarm.core.tasks.formation``)."""
         task = tasks.get(self.task.kind)
-        if self.controller.kind not in task.controllers:
+        if CONTROLLER_KINDS[self.controller.kind].task != task.name:
+            takes = [name for name, kind in CONTROLLER_KINDS.items() if kind.task == task.name]
             raise KeyedError(
                 ("controller", "kind"),
                 f"controller '{self.controller.kind}' does not do task '{task.name}'"
-                f" (it takes: {', '.join(task.controllers)})",
+                f" (it takes: {', '.join(takes)})",
             )
         if task.name == "formation":
             try:

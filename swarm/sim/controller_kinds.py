@@ -113,6 +113,8 @@ class ControllerKind:
     """None: not decentralized; the runtime runs it as one central process (``robot_agent.central``)."""
     options: tuple[str, ...] = field(default=())
     """Scenario keys of ``controller`` beyond ``kind`` that this kind reads."""
+    task: str = "rendezvous"
+    """The task it does (``swarm.core.tasks``); the scenario schema refuses it for another."""
 
     @property
     def central(self) -> bool:
@@ -157,6 +159,7 @@ CONTROLLER_KINDS: dict[str, ControllerKind] = {
             _capt,
             None,
             ("reverse",),
+            task="formation",
         ),
         ControllerKind(
             "capt_flood",
@@ -164,6 +167,7 @@ CONTROLLER_KINDS: dict[str, ControllerKind] = {
             _capt_flood,
             None,
             ("reverse",),
+            task="formation",
         ),
     )
 }
