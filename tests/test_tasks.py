@@ -91,7 +91,7 @@ def test_bad_task_sections_get_one_line_naming_the_key():
 def test_the_bound_is_not_beaten_by_the_expert(name):
     """Every task's expert, on a few random starts, takes at least the bound (a reference: no check)."""
     from swarm.runtime.runner import build_controller
-    from swarm.scenarios.task_report import task_outcome
+    from swarm.scenarios.results import task_outcome
     from swarm.sim.kinematic import KinematicSim
 
     task = tasks.get(name)

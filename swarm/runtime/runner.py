@@ -16,11 +16,12 @@ from swarm.scenarios.fault_results import add_fault_results
 from swarm.scenarios.results import (
     TrajectoryWriter,
     prepare_results_dir,
+    task_outcome,
     write_metrics,
     write_partial_results,
 )
 from swarm.scenarios.scenario import Scenario, ScenarioError, engine_warnings
-from swarm.scenarios.task_report import task_outcome, task_pictures
+from swarm.scenarios.task_report import task_pictures
 from swarm.sim.controller_kinds import ControllerArgs, batched_controller
 from swarm.sim.controllers import BatchedController
 from swarm.sim.kinematic import KinematicSim

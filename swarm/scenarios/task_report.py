@@ -1,7 +1,5 @@
-"""A run's results by its task (``swarm.core.tasks``): the outcome (``metrics.json``) and pictures.
-
-Rendezvous keeps ``swarm.scenarios.results.summarize`` and ``swarm.scenarios.report.write_pictures``
-exactly; a task with its own ``outcome`` is judged by it, and drawn by the ``plot`` its entry names.
+"""A run's pictures by its task (``swarm.core.tasks``): the ``plot`` its entry names; rendezvous keeps
+``swarm.scenarios.report.write_pictures`` exactly. (Its outcome: ``swarm.scenarios.results.task_outcome``.)
 """
 
 from __future__ import annotations
@@ -12,39 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from swarm.core import graphs, tasks
-from swarm.scenarios.results import summarize
+from swarm.core import tasks
 from swarm.scenarios.scenario import Scenario
-
-
-def task_outcome(
-    scenario: Scenario, times_s: np.ndarray, poses: np.ndarray, final_adjacency: np.ndarray
-) -> dict:
-    """What ``metrics.json`` holds for a run of ``scenario``'s task."""
-    task = tasks.get(scenario.task.kind)
-    if task.outcome is None:
-        return summarize(scenario, times_s, poses, final_adjacency)
-    results = task.outcome(times_s, poses[..., :2], scenario.task, scenario.robot.v_max_mps)
-    components = graphs.connected_components(final_adjacency)
-    return {
-        "scenario": scenario.name,
-        "task": task.name,
-        "engine": scenario.sim.engine,
-        "controller": scenario.controller.kind,
-        "robots": scenario.robots.count,
-        **results,
-        "duration_s": float(times_s[-1]),
-        "ticks": int(len(times_s) - 1),
-        "graph_connected": len(components) == 1,
-        "components": [
-            {
-                "robots": list(range(scenario.robots.count)),
-                "converged": results["converged"],
-                "convergence_time_s": results["convergence_time_s"],
-                "final_metric": results["final_metric"],
-            }
-        ],
-    }
 
 
 def task_pictures(
