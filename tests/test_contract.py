@@ -90,6 +90,8 @@ def _model_files() -> dict[str, Path]:
 def _variants() -> list[tuple[str, Path | None]]:
     variants: list[tuple[str, Path | None]] = []
     for name, kind in CONTROLLER_KINDS.items():
+        if kind.task != "rendezvous":
+            continue  # another task's kinds (tests/test_formation.py): no per-robot forms yet
         if "model" in kind.options:
             variants += [(name, path) for path in _model_files().values()]
         else:

@@ -13,15 +13,15 @@ import numpy as np
 
 from swarm.core.faults import PROCESS_FAULTS, LinkFaults, message_max_age_ticks
 from swarm.scenarios.fault_results import add_fault_results
-from swarm.scenarios.report import write_pictures
 from swarm.scenarios.results import (
     TrajectoryWriter,
     prepare_results_dir,
-    summarize,
+    task_outcome,
     write_metrics,
     write_partial_results,
 )
 from swarm.scenarios.scenario import Scenario, ScenarioError, engine_warnings
+from swarm.scenarios.task_report import task_pictures
 from swarm.sim.controller_kinds import ControllerArgs, batched_controller
 from swarm.sim.controllers import BatchedController
 from swarm.sim.kinematic import KinematicSim
@@ -43,6 +43,7 @@ def build_controller(scenario: Scenario, scenario_path: Path | None = None) -> B
         scenario.sim.control_period_s,
         robot_count=scenario.robots.count,
         policy=policy,
+        task=scenario.task,
     )
     try:
         return batched_controller(spec.kind, args)
@@ -99,11 +100,11 @@ def run_kinematic(
         write_partial_results(out_dir, f"interrupted (Ctrl-C) after {done} of {steps + 1} ticks")
         raise
     final_adjacency = sim.adjacency()[0]
-    outcome = summarize(scenario, times, poses, final_adjacency)
+    outcome = task_outcome(scenario, times, poses, final_adjacency)
     if scenario.faults:
         add_fault_results(outcome, scenario, out_dir, {}, times, poses, message_counts=sim.fault_counts)
     write_metrics(out_dir, outcome)
-    write_pictures(out_dir, scenario, times, poses, outcome)
+    task_pictures(out_dir, scenario, times, poses, outcome)
     return outcome
 
 
@@ -127,6 +128,11 @@ def run_scenario(
     )
     if scenario.sim.engine == "kinematic":
         return run_kinematic(scenario, out_dir, scenario_path, progress)
+    if scenario.sim.engine == "pybullet" and scenario.task.kind != "rendezvous":
+        raise ScenarioError(
+            f"task: {scenario.task.kind} runs on the kinematic engine only in this version"
+            " (--engine kinematic)"
+        )
     if scenario.sim.engine == "pybullet":
         from swarm.runtime.distributed import run_distributed
 

@@ -22,8 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from swarm.core import graphs, metrics
-from swarm.scenarios.report import write_pictures
+from swarm.core import graphs, metrics, tasks
 from swarm.scenarios.scenario import Scenario, dump_scenario
 
 
@@ -145,6 +144,37 @@ def summarize(
         "ticks": int(len(times_s) - 1),
         "graph_connected": len(components) == 1,
         "components": metrics.component_results(times_s, positions, components, metric, threshold),
+    }
+
+
+def task_outcome(
+    scenario: Scenario, times_s: np.ndarray, poses: np.ndarray, final_adjacency: np.ndarray
+) -> dict:
+    """What ``metrics.json`` holds for a run of ``scenario``'s task: rendezvous, :func:`summarize`; a task
+    with its own ``outcome`` (``swarm.core.tasks``), that and the keys every run reports."""
+    task = tasks.get(scenario.task.kind)
+    if task.outcome is None:
+        return summarize(scenario, times_s, poses, final_adjacency)
+    results = task.outcome(times_s, poses[..., :2], scenario.task, scenario.robot.v_max_mps)
+    components = graphs.connected_components(final_adjacency)
+    return {
+        "scenario": scenario.name,
+        "task": task.name,
+        "engine": scenario.sim.engine,
+        "controller": scenario.controller.kind,
+        "robots": scenario.robots.count,
+        **results,
+        "duration_s": float(times_s[-1]),
+        "ticks": int(len(times_s) - 1),
+        "graph_connected": len(components) == 1,
+        "components": [
+            {
+                "robots": list(range(scenario.robots.count)),
+                "converged": results["converged"],
+                "convergence_time_s": results["convergence_time_s"],
+                "final_metric": results["final_metric"],
+            }
+        ],
     }
 
 
@@ -351,7 +381,9 @@ def report(out_dir: Path, partial: str | None = None) -> dict:
     if adjacency is None:
         assert scenario.topology.radius_m is not None  # no fixed graph: a disk graph
         adjacency = graphs.disk(poses[-1, :, :2], scenario.topology.radius_m)
-    outcome = summarize(scenario, times_s, poses, adjacency)
+    from swarm.scenarios.task_report import task_pictures
+
+    outcome = task_outcome(scenario, times_s, poses, adjacency)  # rendezvous: summarize
     try:
         previous = json.loads((out_dir / "metrics.json").read_text())
     except (OSError, ValueError):
@@ -375,5 +407,5 @@ def report(out_dir: Path, partial: str | None = None) -> dict:
                 records[int(record_path.stem.split("_")[1])] = json.loads(record_path.read_text())
         add_fault_results(outcome, scenario, out_dir, records, times_s, poses)
     write_metrics(out_dir, outcome)
-    write_pictures(out_dir, scenario, times_s, poses, outcome)
+    task_pictures(out_dir, scenario, times_s, poses, outcome)  # rendezvous: write_pictures
     return outcome

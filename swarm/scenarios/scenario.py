@@ -11,7 +11,7 @@ import logging
 import math
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, Literal, Union
 
 import numpy as np
 import yaml
@@ -25,7 +25,7 @@ from pydantic import (
     model_validator,
 )
 
-from swarm.core import graphs, metrics, topologies
+from swarm.core import graphs, metrics, tasks, topologies
 from swarm.core.faults import FAULT_KINDS
 from swarm.core.robot import RobotParams
 from swarm.sim.controller_kinds import CONTROLLER_KINDS
@@ -340,6 +340,13 @@ class Ros2Spec(_Strict):
     pose_topic: str | None = Field(None, description="topic of the pose (default <ns>/odom or <ns>/pose)")
 
 
+if TYPE_CHECKING:
+    TaskSection = Any
+else:
+    TaskSection = Annotated[Union[tasks.sections()], Field(discriminator="kind")]  # noqa: UP007
+"""The ``task`` mapping: the section of one registered task (``swarm.core.tasks``), chosen by ``kind``."""
+
+
 class Scenario(_Strict):
     name: str
     description: str = ""
@@ -356,6 +363,43 @@ class Scenario(_Strict):
     )
     success: SuccessSpec = Field(default_factory=SuccessSpec)
     ros2: Ros2Spec | None = None
+    task: TaskSection = Field(default_factory=tasks.default_section)
+
+    @field_validator("task", mode="before")
+    @classmethod
+    def _task_name(cls, value: object) -> object:
+        """``task: formation`` is ``task: {kind: formation}``; an unknown kind names the known ones."""
+        if isinstance(value, str):
+            value = {"kind": value}
+        if isinstance(value, dict) and "kind" in value:
+            value = {**value, "kind": _one_of(str(value["kind"]), list(tasks.names()))}
+        return value
+
+    def _check_task(self) -> None:
+        """The controller does the task; a formation has one slot per robot, tolerance under half
+        their spacing (so that success is the bottleneck test, ``swarm.core.tasks.formation``)."""
+        task = tasks.get(self.task.kind)
+        if CONTROLLER_KINDS[self.controller.kind].task != task.name:
+            takes = [name for name, kind in CONTROLLER_KINDS.items() if kind.task == task.name]
+            raise KeyedError(
+                ("controller", "kind"),
+                f"controller '{self.controller.kind}' does not do task '{task.name}'"
+                f" (it takes: {', '.join(takes)})",
+            )
+        if task.name == "formation":
+            try:
+                slots = self.task.slot_positions(self.robots.count)
+            except ValueError as error:
+                raise KeyedError(("task", "slots"), str(error)) from None
+            from swarm.core.tasks.formation import smallest_spacing_m
+
+            spacing = smallest_spacing_m(slots)
+            if not self.task.tolerance_m < spacing / 2:
+                raise KeyedError(
+                    ("task", "tolerance_m"),
+                    f"{self.task.tolerance_m:g} m is not under half the smallest slot spacing"
+                    f" {spacing:.3g} m",
+                )
 
     @model_validator(mode="after")
     def _counts_agree(self) -> Scenario:
@@ -370,6 +414,7 @@ class Scenario(_Strict):
                 f" but robots.count is {count}"
             )
         self._check_faults()
+        self._check_task()
         if self.sim.acl and self.controller.central:
             raise KeyedError(
                 ("sim", "acl"),
@@ -472,6 +517,8 @@ def fixed_adjacency(topology: TopologySpec, count: int, seed: int | None = None)
 
 
 def _location(loc: tuple) -> str:
+    if len(loc) > 1 and loc[0] == "task" and loc[1] in tasks.names():  # the union's tag: task.slots
+        loc = (loc[0], *loc[2:])
     parts: list[str] = []
     for item in loc:
         if isinstance(item, int):

@@ -27,6 +27,7 @@ class ControllerArgs:
     reverse: bool = True
     robot_count: int = 0
     policy: Any = None  # gnn: a policy file path (batched) or its bytes (onboard)
+    task: Any = None  # the scenario's task section (swarm.core.tasks)
 
     @classmethod
     def from_spec(cls, spec: Mapping[str, Any], robot: RobotParams, control_period_s: float, **more):
@@ -85,6 +86,24 @@ def _onboard_mec_flood(args: ControllerArgs):
     return OnboardMecFlood(args.robot, args.control_period_s, args.directions, args.reverse)
 
 
+def _capt(args: ControllerArgs):
+    from swarm.sim.formation_controllers import CaptExpert
+
+    return CaptExpert(args.robot, args.control_period_s, _formation(args), args.reverse)
+
+
+def _capt_flood(args: ControllerArgs):
+    from swarm.sim.formation_controllers import CaptFlood
+
+    return CaptFlood(args.robot, args.control_period_s, _formation(args), args.robot_count, args.reverse)
+
+
+def _formation(args: ControllerArgs):
+    if getattr(args.task, "kind", None) != "formation":
+        raise ValueError("this controller does the formation task: it needs task: {kind: formation, ...}")
+    return args.task
+
+
 @dataclass(frozen=True)
 class ControllerKind:
     name: str
@@ -94,6 +113,8 @@ class ControllerKind:
     """None: not decentralized; the runtime runs it as one central process (``robot_agent.central``)."""
     options: tuple[str, ...] = field(default=())
     """Scenario keys of ``controller`` beyond ``kind`` that this kind reads."""
+    task: str = "rendezvous"
+    """The task it does (``swarm.core.tasks``); the scenario schema refuses it for another."""
 
     @property
     def central(self) -> bool:
@@ -131,6 +152,22 @@ CONTROLLER_KINDS: dict[str, ControllerKind] = {
             _centralized_mec,
             None,
             ("reverse",),
+        ),
+        ControllerKind(
+            "capt",
+            "formation: CAPT assignment of the start, time-synchronized drive to the slots (central)",
+            _capt,
+            None,
+            ("reverse",),
+            task="formation",
+        ),
+        ControllerKind(
+            "capt_flood",
+            "formation: flood the start positions, CAPT assignment of those known, full speed to the slot",
+            _capt_flood,
+            None,
+            ("reverse",),
+            task="formation",
         ),
     )
 }

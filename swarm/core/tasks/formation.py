@@ -1,0 +1,268 @@
+"""Formation with assignment (``task: formation``): N robots take N goal slots, one each.
+
+The slots are public (every robot knows them): a circle, a grid, a line or an explicit list
+(:class:`SlotsSpec`). Success: every slot holds exactly one robot's axle within ``tolerance_m``, held
+``hold_s`` (2 s) to the end of the run. With ``tolerance_m`` under half the smallest slot spacing (the
+schema requires it) a robot is within tolerance of at most one slot, so success at time t is
+exactly ``bottleneck(x(t), slots) <= tolerance_m``: the metric is the bottleneck assignment distance
+of the current axle positions (:func:`bottleneck_distance`).
+
+Assignment (:func:`capt_assignment`): the bottleneck-optimal assignment (least largest distance),
+ties broken by the least sum of squared distances, as in CAPT (Turpin, Michael and Kumar 2014,
+whose sum-of-squares assignment makes synchronized straight lines collision-free).
+
+Lower bound (:func:`lower_bound_s`): ``max(0, B* - tolerance) / v_max``, ``B*`` the bottleneck
+distance of the initial axle positions. Proof: at a time t of success the slots within tolerance
+define a bijection pi with ``|x_i(t) - s_pi(i)| <= tol``; axles move no faster than ``v_max``
+(``v = (vL + vR) / 2``), so ``|x_i(0) - s_pi(i)| <= tol + v_max t`` for every i, and
+``B* <= max_i |x_i(0) - s_pi(i)| <= tol + v_max t``. It is exact for holonomic points starting on
+the lines to their slots: the bottleneck robot drives straight at ``v_max``. (Translation-free
+variant, not built yet: the bound is the same with ``B*`` minimized over translations too.)
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+from swarm.core.tasks.registry import Task, register
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+
+
+class CircleSlots(_Strict):
+    """N slots evenly on a circle: slot k at ``centre + r (cos(phase + 2 pi k / N), sin(...))``."""
+
+    radius_m: float = Field(gt=0)
+    centre: tuple[float, float] = (0.0, 0.0)
+    phase_rad: float = 0.0
+
+
+class GridSlots(_Strict):
+    """Row-major grid of ``columns`` per row (the last row may be short), centred on ``centre``."""
+
+    spacing_m: float = Field(gt=0)
+    columns: int | None = Field(None, ge=1, description="None: ceil(sqrt(N))")
+    centre: tuple[float, float] = (0.0, 0.0)
+
+
+class LineSlots(_Strict):
+    """N slots on a segment, ``spacing_m`` apart, centred on ``centre``, at ``angle_rad`` to the x axis."""
+
+    spacing_m: float = Field(gt=0)
+    centre: tuple[float, float] = (0.0, 0.0)
+    angle_rad: float = 0.0
+
+
+class SlotsSpec(_Strict):
+    """Exactly one of ``circle``, ``grid``, ``line`` and ``points`` (an explicit list of N [x, y])."""
+
+    circle: CircleSlots | None = None
+    grid: GridSlots | None = None
+    line: LineSlots | None = None
+    points: list[tuple[float, float]] | None = None
+
+    @model_validator(mode="after")
+    def _exactly_one(self) -> SlotsSpec:
+        given = [name for name in ("circle", "grid", "line", "points") if getattr(self, name) is not None]
+        if len(given) != 1:
+            raise ValueError(
+                f"give exactly one of 'circle', 'grid', 'line' and 'points', got {given or 'none'}"
+            )
+        return self
+
+    def positions(self, count: int) -> np.ndarray:
+        """``(count, 2)`` slot positions; ValueError when an explicit list has another length."""
+        if self.points is not None:
+            if len(self.points) != count:
+                raise ValueError(f"points has {len(self.points)} slots but robots.count is {count}")
+            return np.array(self.points, dtype=np.float64)
+        if self.circle is not None:
+            spec = self.circle
+            angle = spec.phase_rad + 2.0 * np.pi * np.arange(count) / count
+            return np.stack(
+                [
+                    spec.centre[0] + spec.radius_m * np.cos(angle),
+                    spec.centre[1] + spec.radius_m * np.sin(angle),
+                ],
+                axis=-1,
+            )
+        if self.grid is not None:
+            grid = self.grid
+            columns = grid.columns or math.ceil(math.sqrt(count))
+            rows = math.ceil(count / columns)
+            k = np.arange(count)
+            x = (k % columns - (columns - 1) / 2.0) * grid.spacing_m + grid.centre[0]
+            y = ((rows - 1) / 2.0 - k // columns) * grid.spacing_m + grid.centre[1]
+            return np.stack([x, y], axis=-1)
+        line = self.line
+        assert line is not None  # exactly one is given
+        along = (np.arange(count) - (count - 1) / 2.0) * line.spacing_m
+        return np.stack(
+            [
+                line.centre[0] + along * math.cos(line.angle_rad),
+                line.centre[1] + along * math.sin(line.angle_rad),
+            ],
+            axis=-1,
+        )
+
+
+class FormationSection(_Strict):
+    """``task: {kind: formation, slots: {...}, tolerance_m: 0.1, hold_s: 2.0}``."""
+
+    kind: Literal["formation"] = "formation"
+    slots: SlotsSpec
+    tolerance_m: float = Field(0.1, gt=0, description="a slot holds a robot whose axle is this close")
+    hold_s: float = Field(2.0, ge=0, description="success must hold this long, to the end of the run")
+
+    def slot_positions(self, count: int) -> np.ndarray:
+        return self.slots.positions(count)
+
+
+def smallest_spacing_m(slots: np.ndarray) -> float:
+    """The smallest distance between two slots (inf for one slot)."""
+    if len(slots) < 2:
+        return math.inf
+    gaps = np.sqrt(((slots[:, None] - slots[None]) ** 2).sum(-1))
+    return float(gaps[~np.eye(len(slots), dtype=bool)].min())
+
+
+def distances(positions: np.ndarray, slots: np.ndarray) -> np.ndarray:
+    """``(K, M)`` Euclidean distances from K positions to M slots."""
+    delta = np.asarray(positions, dtype=np.float64)[:, None, :] - np.asarray(slots, dtype=np.float64)[None]
+    return np.sqrt((delta * delta).sum(-1))
+
+
+def _feasible(allowed: np.ndarray) -> bool:
+    """Does the 0/1 matrix ``allowed (K, M)``, K <= M, hold a matching covering every row?"""
+    from scipy.optimize import linear_sum_assignment
+
+    cost = np.where(allowed, 0.0, 1.0)
+    rows, cols = linear_sum_assignment(cost)
+    return bool(cost[rows, cols].sum() == 0.0)
+
+
+def capt_assignment(positions: np.ndarray, slots: np.ndarray) -> np.ndarray:
+    """``(K,)`` slot index of each of K <= M positions: least bottleneck (largest distance), ties by
+    least sum of squared distances (CAPT). Bottleneck by bisection over the sorted distinct distances
+    (each a perfect-matching test, ``scipy.optimize.linear_sum_assignment`` on 0/1 costs), then the
+    least sum of squares among assignments using only distances at or under it."""
+    from scipy.optimize import linear_sum_assignment
+
+    dist = distances(positions, slots)
+    if dist.shape[0] > dist.shape[1]:
+        raise ValueError(f"more robots ({dist.shape[0]}) than slots ({dist.shape[1]})")
+    if dist.shape[0] == 0:
+        return np.zeros(0, dtype=np.int64)
+    levels = np.unique(dist)
+    low, high = 0, len(levels) - 1  # levels[high] is always feasible
+    while low < high:
+        middle = (low + high) // 2
+        if _feasible(dist <= levels[middle]):
+            high = middle
+        else:
+            low = middle + 1
+    bottleneck = levels[low]
+    squared = dist * dist
+    cost = np.where(dist <= bottleneck, squared, squared.max() * dist.size + 1.0)
+    rows, cols = linear_sum_assignment(cost)
+    assignment = np.empty(dist.shape[0], dtype=np.int64)
+    assignment[rows] = cols
+    return assignment
+
+
+def bottleneck_distance(positions: np.ndarray, slots: np.ndarray) -> float:
+    """``min over bijections pi of max_i |x_i - s_pi(i)|`` (m)."""
+    assignment = capt_assignment(positions, slots)
+    return float(distances(positions, slots)[np.arange(len(assignment)), assignment].max(initial=0.0))
+
+
+def lower_bound_s(
+    initial_positions: np.ndarray,
+    section: FormationSection,
+    v_max_mps: float,
+    threshold_m: float | None = None,
+) -> float:
+    """``max(0, B* - tolerance) / v_max`` (module docstring: the proof)."""
+    slots = section.slot_positions(len(initial_positions))
+    return max(0.0, bottleneck_distance(initial_positions, slots) - section.tolerance_m) / v_max_mps
+
+
+def occupied(positions: np.ndarray, slots: np.ndarray, tolerance_m: float) -> np.ndarray:
+    """``(...)`` bool: every slot holds exactly one of the positions ``(..., N, 2)`` within tolerance
+    (N robots, N slots; assumes ``tolerance_m`` under half the slot spacing, so that it equals
+    ``bottleneck <= tolerance``). O(N^2) per configuration, batched."""
+    positions = np.asarray(positions, dtype=np.float64)
+    delta = positions[..., :, None, :] - slots
+    dist = np.sqrt((delta * delta).sum(-1))  # (..., N robots, N slots)
+    within = dist <= tolerance_m
+    return np.all(within.sum(axis=-2) == 1, axis=-1) & np.all(within.sum(axis=-1) == 1, axis=-1)
+
+
+def conflicts(positions: np.ndarray, slots: np.ndarray) -> int:
+    """Robots whose nearest slot is also the nearest slot of a robot before them (0: every robot
+    nearest to its own slot)."""
+    nearest = distances(positions, slots).argmin(axis=1)
+    return int(len(nearest) - len(np.unique(nearest)))
+
+
+def settle_time(times_s: np.ndarray, ok: np.ndarray, hold_s: float) -> float | None:
+    """First time from which ``ok`` holds to the end, if it held at least ``hold_s``; else None."""
+    times_s = np.asarray(times_s, dtype=np.float64)
+    ok = np.asarray(ok, dtype=bool)
+    if not ok[-1]:
+        return None
+    failed = np.flatnonzero(~ok)
+    start = int(failed[-1]) + 1 if len(failed) else 0
+    time_s = float(times_s[start])
+    return time_s if float(times_s[-1]) - time_s >= hold_s - 1e-9 else None
+
+
+def outcome(times_s: np.ndarray, positions: np.ndarray, section: FormationSection, v_max_mps: float) -> dict:
+    """The task's results from the axle positions ``(T, N, 2)``: success (``converged``), its time,
+    the bound and their ratio, the metric (bottleneck distance) at the start and the end, the
+    expert's assignment of the start and the conflicts at the end."""
+    positions = np.asarray(positions, dtype=np.float64)
+    count = positions.shape[1]
+    slots = section.slot_positions(count)
+    ok = occupied(positions, slots, section.tolerance_m)
+    time_s = settle_time(times_s, ok, section.hold_s)
+    bound = lower_bound_s(positions[0], section, v_max_mps)
+    return {
+        "metric": "bottleneck",
+        "threshold": section.tolerance_m,
+        "converged": time_s is not None,
+        "convergence_time_s": time_s,
+        "hold_s": section.hold_s,
+        "initial_metric": bottleneck_distance(positions[0], slots),
+        "final_metric": bottleneck_distance(positions[-1], slots),
+        "lower_bound_s": bound,
+        "ratio_to_lower_bound": time_s / bound if time_s is not None and bound > 0 else None,
+        "assignment": capt_assignment(positions[0], slots).tolist(),
+        "conflicts": conflicts(positions[-1], slots),
+        "slots": slots.tolist(),
+    }
+
+
+FORMATION = register(
+    Task(
+        name="formation",
+        summary="take the N goal slots, one robot each (bottleneck assignment)",
+        section=FormationSection,
+        knows="its own pose, the public slot list and what its heard neighbours sent last tick",
+        experts=("capt",),
+        baselines=("capt_flood",),
+        metric="bottleneck: least largest axle-to-slot distance over assignments",
+        success="every slot holds exactly one axle within tolerance_m, held hold_s to the end",
+        bound="lower_bound",
+        bound_s=lower_bound_s,
+        reward="none yet (issue 20: the RL environments are rendezvous only)",
+        plot="swarm.scenarios.task_report:formation_pictures",
+        outcome=outcome,
+    )
+)

@@ -1,0 +1,91 @@
+"""The task registry: the one place that says what a task is (docs/tasks.md).
+
+A :class:`Task` names everything a run of it needs beyond the robot and the graph: its scenario
+section (a pydantic model, the ``task`` key of a scenario; ``kind`` selects the entry), what each
+robot knows, its centralized expert(s) and decentralized baseline(s) (names of controller kinds of
+``swarm.sim.controller_kinds``, which holds their engines' forms), its metric and success rule, its
+lower bound (with its proof) or reference value, its reward for the RL environments and its plot.
+The last two are dotted names (``module:function``) resolved by the layers above, so that this
+module stays in the math layer. The scenario schema, ``swarm run`` and the results read this
+registry; nothing else lists tasks.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Literal
+
+from pydantic import BaseModel
+
+Outcome = Callable[..., dict]
+
+
+@dataclass(frozen=True)
+class Task:
+    """One task. ``section``: the pydantic model of the scenario's ``task`` mapping (a ``kind``
+    field with this task's name as its only value). ``knows``: what each robot knows, in words.
+    ``experts`` / ``baselines`` / ``learned``: controller kinds that do this task. ``metric`` and
+    ``success``: in words; ``outcome`` (None: the scenario's ``success`` section and
+    ``swarm.scenarios.results.summarize`` judge the run, as for rendezvous) computes the task's
+    results from ``(times_s (T,), positions (T, N, 2), section, v_max_mps)``. ``bound``: ``lower_bound``
+    (proved in the function's docstring) or ``reference`` (a value to compare with, not a bound);
+    ``bound_s``: ``(initial_positions (N, 2), section, v_max_mps, threshold_m) -> s`` (``threshold_m``: the
+    scenario's success threshold, which only rendezvous reads). ``reward`` and ``plot``:
+    ``module:function`` of the RL reward and of the results' pictures."""
+
+    name: str
+    summary: str
+    section: type[BaseModel]
+    knows: str
+    experts: tuple[str, ...]
+    baselines: tuple[str, ...]
+    metric: str
+    success: str
+    bound: Literal["lower_bound", "reference"]
+    bound_s: Callable[..., float] | None
+    reward: str
+    plot: str
+    learned: tuple[str, ...] = ()
+    outcome: Outcome | None = None
+
+    @property
+    def controllers(self) -> tuple[str, ...]:
+        """Every controller kind that does this task."""
+        return (*self.experts, *self.baselines, *self.learned)
+
+
+_REGISTRY: dict[str, Task] = {}
+
+
+def register(task: Task) -> Task:
+    if task.name in _REGISTRY:
+        raise ValueError(f"task {task.name!r} is already registered")
+    kind = task.section.model_fields.get("kind")
+    if kind is None or kind.default != task.name:
+        raise ValueError(f"task {task.name!r}: its section needs a field kind defaulting to {task.name!r}")
+    _REGISTRY[task.name] = task
+    return task
+
+
+def get(name: str) -> Task:
+    """The registered task; ValueError naming the known ones otherwise."""
+    try:
+        return _REGISTRY[name]
+    except KeyError:
+        raise ValueError(f"unknown task {name!r}; choose from {list(_REGISTRY)}") from None
+
+
+def names() -> tuple[str, ...]:
+    """Registered tasks in registration order."""
+    return tuple(_REGISTRY)
+
+
+def sections() -> tuple[type[BaseModel], ...]:
+    """The scenario sections of the registered tasks (the schema's union of ``task`` mappings)."""
+    return tuple(task.section for task in _REGISTRY.values())
+
+
+def default_section(name: str = "rendezvous") -> Any:
+    """The section of ``name`` with every default (what a scenario without ``task`` runs)."""
+    return get(name).section()

@@ -1,0 +1,121 @@
+"""Batched controllers of the formation task (``swarm.core.tasks.formation``), numpy.
+
+``capt`` (:class:`CaptExpert`, centralized): at its first tick it takes the CAPT assignment of the
+initial axle positions (bottleneck-optimal, ties by least sum of squares) and drives every axle
+toward its slot, time-synchronized: every robot's displacement to its slot is scaled by one common
+factor ``min(v_max / D, 1 / T)`` (``D`` the largest remaining distance, ``T`` the control period), so
+that in the holonomic limit every robot moves on its straight line and all arrive together, the
+bottleneck robot at full speed (``swarm.core.experts.drive_toward_velocity`` with per-robot speeds
+``v_max d_i / D``; the axle is steered, reversing when the slot is behind, as ``mec_flood`` does).
+
+``capt_flood`` (:class:`CaptFlood`, decentralized): every robot floods, over the communication graph
+only, the initial axle positions of the robots it knows of (its message is ``N x (known, x, y)``; the
+merge is a union, idempotent under loss and repetition, exact after graph-diameter many ticks). Each
+tick it computes, from the robots it knows, the CAPT assignment of those robots to all N slots and
+drives its axle at full speed toward its own slot (reversing). Once it knows everyone it computes the
+expert's assignment from the expert's input, so all robots agree and no slot is claimed twice. Its
+memory is its own message of last tick, ``inbox[:, i]`` (as ``mec_flood``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from swarm.core.experts import drive_toward_velocity
+from swarm.core.robot import RobotParams
+from swarm.core.tasks.formation import FormationSection, capt_assignment
+from swarm.sim.links import Links
+
+
+class CaptExpert:
+    """``capt``: the centralized formation expert (module docstring)."""
+
+    message_dim = 0
+    centralized = True
+
+    def __init__(
+        self, robot: RobotParams, control_period_s: float, section: FormationSection, reverse: bool = True
+    ):
+        self.robot = robot
+        self.control_period_s = float(control_period_s)
+        self.section = section
+        self.reverse = bool(reverse)
+        self.targets: np.ndarray | None = None  # (B, N, 2), fixed at the first tick
+
+    def act(
+        self, poses: np.ndarray, points: np.ndarray, inbox: np.ndarray, heard: Links
+    ) -> tuple[np.ndarray, np.ndarray]:
+        batch, count = poses.shape[:2]
+        if self.targets is None or self.targets.shape[:2] != (batch, count):
+            slots = self.section.slot_positions(count)
+            self.targets = np.stack([slots[capt_assignment(poses[b, :, :2], slots)] for b in range(batch)])
+        delta = self.targets - poses[..., :2]
+        remaining = np.sqrt((delta * delta).sum(-1))  # (B, N)
+        largest = remaining.max(axis=-1, keepdims=True)
+        speeds = self.robot.v_max_mps * remaining / np.where(largest > 0.0, largest, 1.0)
+        u_world = drive_toward_velocity(poses, self.targets, speeds, self.control_period_s, self.reverse)
+        return u_world, inbox
+
+
+class CaptFlood:
+    """``capt_flood``: the decentralized formation baseline (module docstring)."""
+
+    centralized = False
+
+    def __init__(
+        self,
+        robot: RobotParams,
+        control_period_s: float,
+        section: FormationSection,
+        robot_count: int,
+        reverse: bool = True,
+    ):
+        self.robot = robot
+        self.control_period_s = float(control_period_s)
+        self.section = section
+        self.count = int(robot_count)
+        self.reverse = bool(reverse)
+        self.message_dim = 3 * self.count
+        self.slots = section.slot_positions(self.count)
+        self._known: np.ndarray | None = None  # (B, N, N) what each target was computed from
+        self._targets: np.ndarray | None = None  # (B, N, 2)
+
+    def merge(self, poses: np.ndarray, inbox: np.ndarray, heard: Links) -> np.ndarray:
+        """``(B, N, N, 3)``: robot i's knowledge of tick k, its own of k-1 (``inbox[:, i]``, or its own
+        axle position when it knows nothing yet) united with its heard neighbours' of k-1."""
+        batch, count = poses.shape[:2]
+        memory = inbox[:, :count].reshape(batch, count, count, 3).copy()
+        own = np.arange(count)
+        fresh = memory[:, own, own, 0] == 0.0  # (B, N): does not know itself yet
+        memory[:, own, own, 0] = 1.0
+        memory[:, own, own, 1:] = np.where(fresh[..., None], poses[..., :2], memory[:, own, own, 1:])
+        envs = np.arange(batch)[:, None]
+        for slot in range(heard.index.shape[2]):
+            sender = heard.index[:, :, slot]  # (B, N), -1: none
+            valid = sender >= 0
+            if not valid.any():
+                continue
+            theirs = inbox[envs, np.where(valid, sender, 0)].reshape(batch, count, count, 3)
+            new = valid[..., None] & (theirs[..., 0] != 0.0) & (memory[..., 0] == 0.0)
+            memory[new] = theirs[new]
+        return memory
+
+    def act(
+        self, poses: np.ndarray, points: np.ndarray, inbox: np.ndarray, heard: Links
+    ) -> tuple[np.ndarray, np.ndarray]:
+        batch, count = poses.shape[:2]
+        memory = self.merge(poses, inbox, heard)
+        known = memory[..., 0] != 0.0
+        if self._known is None or self._known.shape != known.shape:
+            self._known = np.zeros_like(known)
+            self._targets = np.zeros((batch, count, 2))
+        assert self._targets is not None
+        for b, i in zip(*np.nonzero(np.any(known != self._known, axis=-1)), strict=True):
+            members = np.flatnonzero(known[b, i])
+            assignment = capt_assignment(memory[b, i, members, 1:], self.slots)
+            self._targets[b, i] = self.slots[assignment[np.searchsorted(members, i)]]
+            self._known[b, i] = known[b, i]
+        u_world = drive_toward_velocity(
+            poses, self._targets, self.robot.v_max_mps, self.control_period_s, self.reverse
+        )
+        return u_world, memory.reshape(batch, count, 3 * count)

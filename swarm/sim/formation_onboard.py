@@ -1,0 +1,64 @@
+"""The formation baseline ``capt_flood`` on board one robot (numpy and the core install only).
+
+The same rule as :class:`swarm.sim.formation_controllers.CaptFlood` for one robot ``robot_id``: its
+memory is what it knows of every robot's initial axle position (``N x (known, x, y)``, its message);
+each tick it unites the heard messages into it, recomputes the CAPT assignment of the robots it knows
+to all slots when that set grew, and drives at full speed toward its own slot. Not yet wired into the
+robot agents (docs/tasks.md, "Not done"); ``tests/test_formation.py`` checks that it computes what the
+batched form computes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from swarm.core.experts import drive_toward_velocity
+from swarm.core.robot import RobotParams
+from swarm.core.tasks.formation import FormationSection, capt_assignment
+
+
+class OnboardCaptFlood:
+    """``capt_flood`` for robot ``robot_id``: ``act_one(pose (3,), neighbour_messages (m, 3N), weights)
+    -> (u_world (2,), message (3N,))`` (``swarm.sim.onboard``'s protocol)."""
+
+    def __init__(
+        self,
+        robot: RobotParams,
+        control_period_s: float,
+        section: FormationSection,
+        robot_count: int,
+        robot_id: int,
+        reverse: bool = True,
+    ):
+        self.robot = robot
+        self.control_period_s = float(control_period_s)
+        self.count = int(robot_count)
+        self.robot_id = int(robot_id)
+        self.reverse = bool(reverse)
+        self.message_dim = 3 * self.count
+        self.slots = section.slot_positions(self.count)
+        self._memory: np.ndarray | None = None  # (N, 3)
+        self._known = np.zeros(self.count, dtype=bool)  # what the target was computed from
+        self._target = np.zeros(2)
+
+    def act_one(
+        self, pose: np.ndarray, neighbour_messages: np.ndarray, weights: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        pose = np.asarray(pose, dtype=np.float64)
+        if self._memory is None:
+            self._memory = np.zeros((self.count, 3))
+            self._memory[self.robot_id] = (1.0, pose[0], pose[1])
+        memory = self._memory
+        for message in np.asarray(neighbour_messages, dtype=np.float64).reshape(-1, self.count, 3):
+            new = (message[:, 0] != 0.0) & (memory[:, 0] == 0.0)
+            memory[new] = message[new]
+        known = memory[:, 0] != 0.0
+        if not np.array_equal(known, self._known):
+            members = np.flatnonzero(known)
+            assignment = capt_assignment(memory[members, 1:], self.slots)
+            self._target = self.slots[assignment[np.searchsorted(members, self.robot_id)]]
+            self._known = known
+        u_world = drive_toward_velocity(
+            pose, self._target, self.robot.v_max_mps, self.control_period_s, self.reverse
+        )
+        return u_world, memory.reshape(-1).copy()

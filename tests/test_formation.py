@@ -1,0 +1,242 @@
+"""Formation with assignment (swarm.core.tasks.formation, swarm.sim.formation_controllers).
+
+Oracles: brute force over every permutation (assignment, bottleneck), hand-made configurations
+(bound, success time), and the definition of decentralization (a robot's first k ticks do not depend
+on robots more than k hops away)."""
+
+from __future__ import annotations
+
+import itertools
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from swarm.core import graphs
+from swarm.core.robot import RobotParams
+from swarm.core.tasks import formation
+from swarm.core.tasks.formation import FormationSection
+from swarm.sim.formation_controllers import CaptExpert, CaptFlood
+from swarm.sim.kinematic import KinematicSim
+
+
+def _brute(positions: np.ndarray, slots: np.ndarray) -> tuple[float, float]:
+    """(least bottleneck, least sum of squares among the assignments of that bottleneck)."""
+    dist = np.sqrt(((positions[:, None] - slots[None]) ** 2).sum(-1))
+    best = (math.inf, math.inf)
+    for chosen in itertools.permutations(range(len(slots)), len(positions)):
+        values = dist[np.arange(len(positions)), list(chosen)]
+        best = min(best, (float(values.max()), float((values**2).sum())))
+    return best
+
+
+def _cost(positions, slots, assignment) -> tuple[float, float]:
+    values = np.sqrt(((positions - slots[assignment]) ** 2).sum(-1))
+    return float(values.max()), float((values**2).sum())
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_capt_assignment_is_the_brute_force_optimum(seed):
+    rng = np.random.default_rng(seed)
+    count = int(rng.integers(1, 7))
+    slots_count = count + int(rng.integers(0, 2)) if seed % 3 else count  # also fewer robots than slots
+    positions = rng.uniform(-2, 2, (count, 2))
+    if seed % 4 == 0:  # ties: integer grid points
+        positions = rng.integers(-2, 3, (count, 2)).astype(float)
+    slots = rng.uniform(-2, 2, (slots_count, 2)) if seed % 4 else rng.integers(-2, 3, (slots_count, 2)) + 0.0
+    assignment = formation.capt_assignment(positions, slots)
+    assert len(set(assignment.tolist())) == count
+    bottleneck, squares = _cost(positions, slots, assignment)
+    best_bottleneck, best_squares = _brute(positions, slots)
+    assert bottleneck == best_bottleneck
+    assert squares == pytest.approx(best_squares, rel=1e-12, abs=1e-12)
+
+
+def test_bottleneck_prefers_the_least_largest_distance_over_the_least_sum():
+    # sum of squares alone takes 0->0, 1->1 (1 + 9 = 10, largest 3); the bottleneck takes 0->1,
+    # 1->0 (largest sqrt(8) = 2.83, sum 8 + 8 = 16 > 10? no: checked below by the numbers)
+    positions = np.array([[0.0, 0.0], [3.0, 0.0]])
+    slots = np.array([[1.0, 0.0], [0.0, 3.0]])
+    # 0->0: 1, 1->1: sqrt(18)=4.24 (largest 4.24); 0->1: 3, 1->0: 2 (largest 3)
+    assert formation.capt_assignment(positions, slots).tolist() == [1, 0]
+    assert formation.bottleneck_distance(positions, slots) == 3.0
+
+
+def test_ties_in_the_bottleneck_go_to_the_least_sum_of_squares():
+    positions = np.array([[0.0, 0.0], [1.0, 0.0]])
+    slots = np.array([[0.0, 2.0], [1.0, 0.5]])
+    # 0->0: 2, 1->1: 0.5 (max 2, sum 4.25); 0->1: sqrt(1.25), 1->0: sqrt(5) = 2.24 (max 2.24)
+    assert formation.capt_assignment(positions, slots).tolist() == [0, 1]
+    positions = np.array([[0.0, 0.0], [0.0, 1.0]])
+    slots = np.array([[0.0, 3.0], [0.0, -1.0]])
+    # both assignments: the largest distance is 3 (0->0) or 4 (1->1 ... ) ; 0->0 3, 1->1 2: max 3, sum 13;
+    # 0->1 1, 1->0 2: max 2, sum 5
+    assert formation.capt_assignment(positions, slots).tolist() == [1, 0]
+
+
+@pytest.mark.parametrize("seed", range(30))
+def test_occupied_is_bottleneck_within_tolerance(seed):
+    rng = np.random.default_rng(100 + seed)
+    count = int(rng.integers(2, 6))
+    slots = FormationSection(slots={"circle": {"radius_m": 1.0}}).slot_positions(count)
+    tolerance = 0.45 * formation.smallest_spacing_m(slots)
+    positions = slots[rng.permutation(count)] + rng.normal(0, tolerance * 0.8, (count, 2))
+    expected = _brute(positions, slots)[0] <= tolerance
+    assert bool(formation.occupied(positions, slots, tolerance)) == expected
+
+
+def test_slot_shapes():
+    circle = FormationSection(slots={"circle": {"radius_m": 2.0, "centre": (1.0, 0.0)}}).slot_positions(4)
+    np.testing.assert_allclose(circle, [[3, 0], [1, 2], [-1, 0], [1, -2]], atol=1e-12)
+    grid = FormationSection(slots={"grid": {"spacing_m": 1.0, "columns": 2}}).slot_positions(3)
+    np.testing.assert_allclose(grid, [[-0.5, 0.5], [0.5, 0.5], [-0.5, -0.5]])
+    line = FormationSection(slots={"line": {"spacing_m": 0.5, "angle_rad": math.pi / 2}}).slot_positions(3)
+    np.testing.assert_allclose(line, [[0, -0.5], [0, 0], [0, 0.5]], atol=1e-12)
+    with pytest.raises(ValueError, match=r"2 slots but robots\.count is 3"):
+        FormationSection(slots={"points": [[0, 0], [1, 1]]}).slot_positions(3)
+
+
+def test_settle_time_needs_the_hold():
+    times = np.arange(6) * 0.5
+    assert formation.settle_time(times, [0, 1, 0, 1, 1, 1], 1.0) == 1.5
+    assert formation.settle_time(times, [0, 1, 0, 0, 1, 1], 1.0) is None  # held 0.5 s only
+    assert formation.settle_time(times, [1, 1, 1, 1, 1, 0], 0.0) is None
+
+
+def _run(controller_cls, poses, section, adjacency=None, seconds=30.0, **kwargs):
+    robot = RobotParams()
+    count = poses.shape[-2]
+    controller = controller_cls(robot, 0.05, section, **kwargs)
+    sim = KinematicSim(
+        robot,
+        controller,
+        0.05,
+        poses,
+        adjacency=np.ones((count, count)) - np.eye(count) if adjacency is None else adjacency,
+    )
+    return sim.rollout(round(seconds / 0.05))
+
+
+def test_the_bound_is_met_by_a_robot_already_heading_for_its_slot():
+    # one robot 3 m from its slot, facing it: straight at v_max, success (within 0.1 m) at (3 - 0.1) / 0.5
+    section = FormationSection(slots={"points": [[3.0, 0.0]]}, tolerance_m=0.1, hold_s=1.0)
+    poses = np.array([[[0.0, 0.0, 0.0]]])
+    trajectory = _run(CaptExpert, poses, section, seconds=10.0)
+    times = np.arange(len(trajectory)) * 0.05
+    outcome = formation.outcome(times, trajectory[:, 0, :, :2], section, 0.5)
+    assert outcome["lower_bound_s"] == pytest.approx(5.8)
+    assert outcome["lower_bound_s"] <= outcome["convergence_time_s"] <= outcome["lower_bound_s"] + 0.05 + 1e-9
+
+
+@pytest.mark.parametrize("controller", [CaptExpert, CaptFlood])
+@pytest.mark.parametrize("graph", ["complete", "line"])
+def test_every_start_succeeds_no_faster_than_the_bound(controller, graph):
+    rng = np.random.default_rng(7)
+    count = 8
+    section = FormationSection(slots={"circle": {"radius_m": 1.2}})
+    poses = np.concatenate([rng.uniform(-3, 3, (6, count, 2)), rng.uniform(-np.pi, np.pi, (6, count, 1))], -1)
+    adjacency = graphs.complete(count) if graph == "complete" else graphs.line(count)
+    kwargs = {"robot_count": count} if controller is CaptFlood else {}
+    trajectory = _run(controller, poses, section, adjacency, seconds=40.0, **kwargs)
+    times = np.arange(len(trajectory)) * 0.05
+    for b in range(len(poses)):
+        outcome = formation.outcome(times, trajectory[:, b, :, :2], section, 0.5)
+        assert outcome["converged"], b
+        assert outcome["conflicts"] == 0
+        assert outcome["ratio_to_lower_bound"] >= 1.0
+
+
+def test_the_baseline_ends_with_the_experts_assignment():
+    rng = np.random.default_rng(3)
+    count = 7
+    section = FormationSection(slots={"grid": {"spacing_m": 0.8}})
+    poses = np.concatenate([rng.uniform(-3, 3, (3, count, 2)), rng.uniform(-np.pi, np.pi, (3, count, 1))], -1)
+    robot = RobotParams()
+    expert = CaptExpert(robot, 0.05, section)
+    flood = CaptFlood(robot, 0.05, section, count)
+    KinematicSim(robot, expert, 0.05, poses, adjacency=graphs.complete(count)).rollout(1)
+    KinematicSim(robot, flood, 0.05, poses, adjacency=graphs.line(count)).rollout(count)  # diameter + 1
+    assert flood._targets is not None and expert.targets is not None
+    np.testing.assert_array_equal(flood._targets, expert.targets)
+
+
+def test_decentralized_robot_zero_ignores_robots_beyond_k_hops_for_k_ticks():
+    """Robot 0's state (its message: everything it knows) and pose through tick k do not depend on robots
+    more than k hops away on a line; with them moved, robot 0's message differs later."""
+    count, hops = 8, 4
+    rng = np.random.default_rng(11)
+    section = FormationSection(slots={"circle": {"radius_m": 1.5}})
+    poses = np.concatenate([rng.uniform(-3, 3, (1, count, 2)), rng.uniform(-np.pi, np.pi, (1, count, 1))], -1)
+    moved = poses.copy()
+    moved[0, hops + 1 :, :2] += 5.0  # robots more than `hops` hops from robot 0 on the line
+    robot = RobotParams()
+    records = []
+    for start in (poses, moved):
+        sim = KinematicSim(
+            robot, CaptFlood(robot, 0.05, section, count), 0.05, start, adjacency=graphs.line(count)
+        )
+        messages, robot_poses = [], [sim.poses[0, 0].copy()]
+        for _ in range(count + 1):
+            sim.step()
+            messages.append(sim.inbox[0, 0].copy())  # robot 0's message of the tick just acted
+            robot_poses.append(sim.poses[0, 0].copy())
+        records.append((np.array(messages), np.array(robot_poses)))
+    (messages, robot_poses), (moved_messages, moved_poses) = records
+    np.testing.assert_array_equal(messages[: hops + 1], moved_messages[: hops + 1])  # ticks 0..k
+    np.testing.assert_array_equal(robot_poses[: hops + 2], moved_poses[: hops + 2])  # acted on ticks 0..k
+    assert not np.array_equal(messages[hops + 1], moved_messages[hops + 1])  # tick k+1: robot k+1 heard of
+
+
+@pytest.mark.parametrize("graph", ["line", "cycle", "complete"])
+def test_the_per_robot_baseline_computes_what_the_batched_one_computes(graph):
+    """``OnboardCaptFlood``, one instance per robot keeping its own messages, fed the engine's poses,
+    against ``CaptFlood`` in ``KinematicSim``: the same commands and messages, bit for bit."""
+    from swarm.sim.formation_onboard import OnboardCaptFlood
+
+    count = 7
+    rng = np.random.default_rng(5)
+    section = FormationSection(slots={"line": {"spacing_m": 0.6}})
+    poses = np.concatenate([rng.uniform(-3, 3, (1, count, 2)), rng.uniform(-np.pi, np.pi, (1, count, 1))], -1)
+    adjacency = {"line": graphs.line, "cycle": graphs.cycle, "complete": graphs.complete}[graph](count)
+    robot = RobotParams()
+    sim = KinematicSim(robot, CaptFlood(robot, 0.05, section, count), 0.05, poses, adjacency=adjacency)
+    robots = [OnboardCaptFlood(robot, 0.05, section, count, i) for i in range(count)]
+    sent = None
+    for _ in range(3 * count):
+        now = sim.poses[0].copy()
+        outputs = []
+        for i, onboard in enumerate(robots):
+            heard = [] if sent is None else [sent[j] for j in np.flatnonzero(adjacency[i])]
+            messages = np.array(heard).reshape(len(heard), 3 * count)
+            outputs.append(onboard.act_one(now[i], messages, None))
+        u_world = sim.act()
+        np.testing.assert_array_equal(u_world[0], np.array([u for u, _ in outputs]))
+        sent = np.array([message for _, message in outputs])
+        np.testing.assert_array_equal(sim.inbox[0], sent)
+        sim.move(u_world)
+
+
+@pytest.mark.runtime
+def test_swarm_run_and_report_of_a_formation_scenario(tmp_path):
+    """``swarm run --engine kinematic`` of a committed scenario: exit 0, the task's metrics and
+    pictures; ``swarm report`` re-creates the same metrics from the trajectory; an unreachable
+    formation (40 s too short) exits 1; the pybullet engine refuses the task (exit 2)."""
+    import json
+
+    from swarm.cli import main
+
+    scenario = Path(__file__).resolve().parents[1] / "scenarios" / "formation" / "cycle-capt_flood.yaml"
+    out = tmp_path / "run"
+    assert main(["run", str(scenario), "--out", str(out), "--quiet"]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["task"] == "formation" and metrics["converged"] and metrics["conflicts"] == 0
+    assert metrics["ratio_to_lower_bound"] >= 1.0
+    assert (out / "formation.png").is_file() and (out / "convergence.png").is_file()
+    (out / "metrics.json").unlink()
+    assert main(["report", str(out), "--quiet"]) == 0
+    again = json.loads((out / "metrics.json").read_text())
+    assert {key: again[key] for key in metrics} == metrics
+    short = tmp_path / "short"
+    assert main(["run", str(scenario), "--out", str(short), "--quiet", "--duration", "2"]) == 1
+    assert main(["run", str(scenario), "--out", str(tmp_path / "pb"), "--quiet", "--engine", "pybullet"]) == 2
