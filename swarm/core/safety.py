@@ -37,6 +37,8 @@ brakes (``u = 0``) and the tick is flagged ``INFEASIBLE``.
 
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -56,6 +58,7 @@ class SafetyParams(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
+    kind: Literal["barrier"] = "barrier"
     gain_per_s: float = Field(
         10.0, gt=0, description="gamma of dh/dt >= -gamma h; gamma dt <= 1 keeps it exact"
     )

@@ -195,6 +195,10 @@ def summary_lines(outcome: dict, out_dir: Path | str) -> list[str]:
             f"  NOT converged{who}: final {outcome['metric']} {outcome['final_metric']:.3f} m"
             f" ({metric} wanted)"
         )
+    from swarm.scenarios.safety_results import safety_summary_line
+
+    if (bodies := safety_summary_line(outcome)) is not None:
+        lines.append(bodies)
     if len(outcome["components"]) > 1:
         lines.append(f"  graph has {len(outcome['components'])} components:")
         for component in outcome["components"]:
