@@ -54,7 +54,8 @@ def starts(kind: str, count: int, rng: np.random.Generator) -> np.ndarray:
         half = 0.5 * math.sqrt(count)
         first = _separated(rng, count // 2, lambda r: r.uniform(-half, half, 2))
         second = _separated(rng, count - count // 2, lambda r: r.uniform(-half, half, 2))
-        xy = np.concatenate([first - [4.0 + half, 0.0], second + [4.0 + half, 0.0]])
+        shift = np.array([4.0 + half, 0.0])
+        xy = np.concatenate([first - shift, second + shift])
     elif kind == "strip":
         length = 0.8 * count
         xy = _separated(rng, count, lambda r: r.uniform([-length / 2, -0.5], [length / 2, 0.5]))
@@ -72,7 +73,8 @@ def main() -> None:
         for index, kind in enumerate(("uniform", "two-cluster", "strip", "ring")):
             rng = np.random.default_rng(1000 * count + index)
             poses = starts(kind, count, rng)
-            topology = GRAPHS.get(kind, {"kind": "disk", "radius": 0.5 * count * math.sin(math.pi / count) + 1.0})
+            ring_radius = 0.5 * count * math.sin(math.pi / count) + 1.0  # half a ring edge, plus 1 m
+            topology = GRAPHS.get(kind, {"kind": "disk", "radius": ring_radius})
             threshold = round(1.5 * packing_estimate_m(count, diameter), 2)
             scenario = {
                 "name": f"safety-{kind}-{count}",
