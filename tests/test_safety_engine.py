@@ -168,3 +168,24 @@ def test_bad_safety_keys_are_named(safety, key):
 def test_bad_obstacle_is_named():
     with pytest.raises(ScenarioError, match="obstacles"):
         parse_scenario({**SCENARIO, "obstacles": [{"kind": "disc", "centre": [0, 0]}]})
+
+
+def test_a_robot_sees_nothing_of_a_body_beyond_its_radius_and_its_k_hops():
+    """Robot 0 of a line of 8 (2 m apart, sensing 1.5 m) keeps its poses for 7 ticks when robot 7, 7 hops
+    away and out of everyone's sight but robot 6's, starts elsewhere; later the change reaches it (local
+    consensus sends positions: a change moves one hop per two ticks, so robot 0 first moves differently
+    at tick 14)."""
+    count = 8
+    poses = np.array([[[2.0 * i, 0.1 * i, 0.3 * i] for i in range(count)]])
+    moved = poses.copy()
+    moved[0, 7, :2] += [0.4, 0.3]
+
+    def run(start):
+        controller = batched_controller("local_consensus", ControllerArgs(robot=ROBOT, robot_count=count))
+        layer = SafetyFilter(ROBOT, SafetyParams(), Capsules())
+        sim = KinematicSim(ROBOT, controller, 0.05, start, adjacency=graphs.line(count), safety=layer)
+        return sim.rollout(20)[:, 0]
+
+    plain, perturbed = run(poses), run(moved)
+    np.testing.assert_array_equal(plain[:8, 0], perturbed[:8, 0])
+    assert np.any(plain[8:, 0] != perturbed[8:, 0])
