@@ -189,3 +189,20 @@ def test_a_robot_sees_nothing_of_a_body_beyond_its_radius_and_its_k_hops():
     plain, perturbed = run(poses), run(moved)
     np.testing.assert_array_equal(plain[:8, 0], perturbed[:8, 0])
     assert np.any(plain[8:, 0] != perturbed[8:, 0])
+
+
+def test_report_recomputes_contacts_and_keeps_the_filter_counts(tmp_path):
+    from swarm.scenarios.results import report
+
+    scenario = parse_scenario({**SCENARIO, "safety": {"kind": "barrier"}})
+    run_scenario(scenario, tmp_path / "run", progress=False)
+    written = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    lines = (tmp_path / "run" / "trajectory.jsonl").read_text().splitlines(keepends=True)
+    collided = [json.loads(line) for line in lines]
+    for line in collided[-3:]:  # the last ticks on top of each other: the report must see contacts
+        line["poses"] = [[0.0, 0.0, 0.0], [0.1, 0.0, 0.0]]
+    (tmp_path / "run" / "trajectory.jsonl").write_text("".join(json.dumps(line) + "\n" for line in collided))
+    again = report(tmp_path / "run")
+    assert again["contacts"] == {"robot_robot": 3, "robot_obstacle": 0, "ticks": 3}
+    assert again["min_clearance_m"] == pytest.approx(0.1 - 2 * ROBOT.body_radius_m)
+    assert again["safety_filter"] == written["safety_filter"]

@@ -290,6 +290,12 @@ def report(out_dir: Path, partial: str | None = None) -> dict:
     if not isinstance(previous, dict):
         previous = {}
     outcome = {**previous, **outcome}
+    if scenario.sim.engine == "kinematic":  # overlaps from the trajectory; the filter's counts are kept
+        from swarm.core.obstacles import Capsules
+        from swarm.scenarios.safety_results import contact_results
+
+        outcome.update(contact_results(poses, scenario.robot.body_radius_m, Capsules(scenario.obstacles)))
+        outcome.setdefault("safety_filter", None)
     steps = scenario.steps
     if partial:
         outcome["incomplete"] = partial
