@@ -67,7 +67,6 @@ def _clear_starts(seed, batch, count):
     return poses[clear][:batch]
 
 
-@pytest.mark.slow
 @settings(max_examples=8)
 @given(
     seed=st.integers(0, 2**32 - 1),
