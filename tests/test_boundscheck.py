@@ -9,7 +9,8 @@ fixed and on a disk graph, without faults and under every link fault kind (a del
 an inbox of several ticks), with a mid-run restart of one environment and a ``keep`` of some, the
 sweep's convergence loop, serial and then with every kernel threaded. An index out of bounds raises
 IndexError and the script fails. It then requires that every compiled kernel of ``swarm.sim.kernels``,
-``swarm.sim.mec_kernels`` and ``swarm.sim.flood_kernel`` has run (a new kernel is checked for free,
+``swarm.sim.mec_kernels``, ``swarm.sim.flood_kernel`` and ``swarm.sim.safety_kernel`` (the safety filter, run
+with one, two and five robots and an obstacle) has run (a new kernel is checked for free,
 or this test names it). Process faults need the pybullet engine (``tests/test_contract.py`` checks
 that the kinematic engine refuses them).
 """
@@ -48,7 +49,10 @@ from pathlib import Path
 from swarm.core.faults import LINK_FAULTS, LinkFaults
 from swarm.core.robot import RobotParams
 from swarm.scenarios.sweep import converge_batch
-from swarm.sim import flood_kernel, kernels, mec_kernels
+from swarm.sim import flood_kernel, kernels, mec_kernels, safety_kernel
+from swarm.core.obstacles import Capsules, ObstacleSpec
+from swarm.core.safety import SafetyParams
+from swarm.sim.safety_filter import SafetyFilter
 from swarm.sim.controller_kinds import CONTROLLER_KINDS, ControllerArgs, batched_controller
 from swarm.sim.kinematic import KinematicSim
 from swarm.sim.policy import load_policy
@@ -80,8 +84,18 @@ def start():
 
 
 runs = 0
+obstacles = Capsules([ObstacleSpec(kind="disc", centre=(0.0, 0.0), radius_m=0.2)])
 for threshold in (1 << 62, 0):  # serial, then every kernel threaded
     kernels.PARALLEL_MIN_ROBOTS = threshold
+    for safety_count in (1, 2, count):  # the safety filter: alone, a pair, a crowd, with an obstacle
+        safe = SafetyFilter(robot, SafetyParams(noise_m=0.01, dropout=0.2), obstacles)
+        args = ControllerArgs(robot=robot, robot_count=safety_count)
+        sim = KinematicSim(
+            robot, batched_controller("local_consensus", args), 0.05, start()[:, :safety_count],
+            adjacency=graphs.complete(safety_count), safety=safe,
+        )
+        for _ in range(6):
+            sim.step()
     for name, model in variants:
         args = ControllerArgs(robot=robot, robot_count=count, policy=model)
         for graph in ({"adjacency": graphs.line(count)}, {"disk_radius_m": 1.2}):
@@ -114,7 +128,8 @@ def dispatchers(module):
             yield from (cell for cell in cells if isinstance(cell, Dispatcher))
 
 
-found = {id(d): d for module in (kernels, mec_kernels, flood_kernel) for d in dispatchers(module)}
+found = {id(d): d for module in (kernels, mec_kernels, flood_kernel, safety_kernel)
+         for d in dispatchers(module)}
 never = sorted(
     d.py_func.__qualname__
     for d in found.values()

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from swarm.core.faults import PROCESS_FAULTS, LinkFaults, message_max_age_ticks
+from swarm.core.obstacles import Capsules
 from swarm.scenarios.fault_results import add_fault_results
 from swarm.scenarios.results import (
     TrajectoryWriter,
@@ -20,11 +21,13 @@ from swarm.scenarios.results import (
     write_metrics,
     write_partial_results,
 )
+from swarm.scenarios.safety_results import add_safety_results
 from swarm.scenarios.scenario import Scenario, ScenarioError, engine_warnings
 from swarm.scenarios.task_report import task_pictures
 from swarm.sim.controller_kinds import ControllerArgs, batched_controller
 from swarm.sim.controllers import BatchedController
 from swarm.sim.kinematic import KinematicSim
+from swarm.sim.safety_filter import SafetyFilter
 
 log = logging.getLogger(__name__)
 
@@ -68,6 +71,8 @@ def run_kinematic(
         log.warning("%s", warning)
     controller = build_controller(scenario, scenario_path)
     adjacency = scenario.adjacency()
+    obstacles = Capsules(scenario.obstacles)
+    safety = SafetyFilter(scenario.robot, scenario.safety, obstacles) if scenario.safety else None
     sim = KinematicSim(
         scenario.robot,
         controller,
@@ -77,6 +82,7 @@ def run_kinematic(
         disk_radius_m=scenario.topology.radius_m if adjacency is None else None,
         link_faults=LinkFaults.from_scenario(scenario) if scenario.faults else None,
         message_max_age_ticks=message_max_age_ticks(scenario.sim),
+        safety=safety,
     )
     prepare_results_dir(out_dir, scenario)
     (out_dir / "events.jsonl").unlink(missing_ok=True)  # process faults of an earlier run there
@@ -103,6 +109,8 @@ def run_kinematic(
     outcome = task_outcome(scenario, times, poses, final_adjacency)
     if scenario.faults:
         add_fault_results(outcome, scenario, out_dir, {}, times, poses, message_counts=sim.fault_counts)
+    counts = safety.counts if safety is not None else None
+    add_safety_results(outcome, poses, scenario.robot.body_radius_m, obstacles, counts)
     write_metrics(out_dir, outcome)
     task_pictures(out_dir, scenario, times, poses, outcome)
     return outcome
@@ -133,6 +141,9 @@ def run_scenario(
             f"task: {scenario.task.kind} runs on the kinematic engine only in this version"
             " (--engine kinematic)"
         )
+    if scenario.sim.engine == "pybullet" and (scenario.safety is not None or scenario.obstacles):
+        key = "safety" if scenario.safety is not None else "obstacles"
+        raise ScenarioError(f"{key}: needs the kinematic engine in this version (docs/safety.md)")
     if scenario.sim.engine == "pybullet":
         from swarm.runtime.distributed import run_distributed
 

@@ -137,7 +137,26 @@ def write_pictures(
         states=robot_states(outcome, poses.shape[1], len(times)),
         links_down=None if schedule is None or schedule.empty else schedule.down_matrix,
         partial=partial_reason(outcome),
+        obstacles=_capsules(scenario),
     )
+
+
+def _capsules(scenario: Scenario):
+    """The scenario's obstacles as ``swarm.core.obstacles.Capsules``, or None without any."""
+    from swarm.core.obstacles import Capsules
+
+    return Capsules(scenario.obstacles) if scenario.obstacles else None
+
+
+def _draw_obstacles(draw, obstacles, to_px, scale: float) -> None:
+    """Every obstacle filled grey: a capsule is a thick segment with a disc at each end."""
+    for start, end, radius in zip(obstacles.start, obstacles.end, obstacles.radius, strict=True):
+        radius_px = max(1.0, radius * scale)
+        for centre in (start, end):
+            x, y = to_px(centre)
+            draw.ellipse([x - radius_px, y - radius_px, x + radius_px, y + radius_px], fill=DEAD)
+        if np.any(start != end):
+            draw.line([to_px(start), to_px(end)], fill=DEAD, width=max(1, round(2 * radius_px)))
 
 
 def convergence_plot(
@@ -308,6 +327,7 @@ def animation_gif(
     states: np.ndarray | None = None,
     links_down=None,
     partial: str | None = None,
+    obstacles=None,
 ) -> None:
     """Top-down frames: robots as discs with a heading tick and their id, their paths so far, graph
     edges in grey (dashed red while the link carries nothing, or a robot at either end is dead), dead
@@ -315,7 +335,8 @@ def animation_gif(
     and zooms in as it gathers (:func:`view_spans`).
 
     ``states``: ``(T, N)`` agent states (:func:`robot_states`); ``links_down(count, tick)``: ``(N, N)``
-    bool, links that carry nothing at that tick (``swarm.core.faults.LinkFaults.down_matrix``)."""
+    bool, links that carry nothing at that tick (``swarm.core.faults.LinkFaults.down_matrix``);
+    ``obstacles``: ``swarm.core.obstacles.Capsules``, drawn grey under everything else."""
     from PIL import Image, ImageDraw
 
     stride = max(1, int(np.ceil(len(times_s) / max_frames)))
@@ -344,6 +365,8 @@ def animation_gif(
         state = states[index] if states is not None else np.zeros(count, dtype=np.int8)
         edges = adjacency if adjacency is not None else graphs.disk(xy[index], disk_radius_m or 0.0)
         down = links_down(count, index) if links_down is not None else np.zeros((count, count), dtype=bool)
+        if obstacles is not None:
+            _draw_obstacles(draw, obstacles, to_px, scale)
         for robot in range(count):
             trail = [to_px(xy[past, robot]) for past in frame_indices if past <= index]
             if len(trail) > 1:

@@ -258,6 +258,10 @@ def summary_lines(outcome: dict, out_dir: Path | str) -> list[str]:
             f"  NOT converged{who}: final {outcome['metric']} {outcome['final_metric']:.3f} m"
             f" ({metric} wanted)"
         )
+    from swarm.scenarios.safety_results import safety_summary_line
+
+    if (bodies := safety_summary_line(outcome)) is not None:
+        lines.append(bodies)
     if len(outcome["components"]) > 1:
         lines.append(f"  graph has {len(outcome['components'])} components:")
         for component in outcome["components"]:
@@ -391,6 +395,12 @@ def report(out_dir: Path, partial: str | None = None) -> dict:
     if not isinstance(previous, dict):
         previous = {}
     outcome = {**blocks_from_disk(out_dir, scenario), **previous, **outcome}  # the run's own blocks win
+    if scenario.sim.engine == "kinematic":  # overlaps from the trajectory; the filter's counts are kept
+        from swarm.core.obstacles import Capsules
+        from swarm.scenarios.safety_results import contact_results
+
+        outcome.update(contact_results(poses, scenario.robot.body_radius_m, Capsules(scenario.obstacles)))
+        outcome.setdefault("safety_filter", None)
     steps = scenario.steps
     if partial:
         outcome["incomplete"] = partial

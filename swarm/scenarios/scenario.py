@@ -27,7 +27,9 @@ from pydantic import (
 
 from swarm.core import graphs, metrics, tasks, topologies
 from swarm.core.faults import FAULT_KINDS
+from swarm.core.obstacles import ObstacleSpec
 from swarm.core.robot import RobotParams
+from swarm.core.safety import SafetyParams, gain_is_exact, min_sensing_radius_m
 from swarm.sim.controller_kinds import CONTROLLER_KINDS
 
 DEFAULT_MODEL_NAME = "gnn_default.npz"  # in <project root>/models, for controller gnn without a model
@@ -400,6 +402,28 @@ class Scenario(_Strict):
                     f"{self.task.tolerance_m:g} m is not under half the smallest slot spacing"
                     f" {spacing:.3g} m",
                 )
+    obstacles: list[ObstacleSpec] = Field(default_factory=list, description="static discs and walls")
+    safety: SafetyParams | None = Field(None, description="the barrier filter (docs/safety.md); off: None")
+
+    @model_validator(mode="after")
+    def _safety_consistent(self) -> Scenario:
+        """The sensing radius sees a body before it can reach the barrier; ``gamma dt <= 1``."""
+        if self.safety is None:
+            return self
+        least = min_sensing_radius_m(self.robot, self.safety, self.sim.control_period_s)
+        if self.safety.sensing_radius_m < least:
+            raise KeyedError(
+                ("safety", "sensing_radius_m"),
+                f"{self.safety.sensing_radius_m:g} m is under {least:.3f} m, the barrier distance plus"
+                " two robots' approach in one control period",
+            )
+        if not gain_is_exact(self.safety, self.sim.control_period_s):
+            raise KeyedError(
+                ("safety", "gain_per_s"),
+                f"{self.safety.gain_per_s:g}/s times the control period {self.sim.control_period_s:g} s"
+                " is over 1: the barrier would not hold between ticks",
+            )
+        return self
 
     @model_validator(mode="after")
     def _counts_agree(self) -> Scenario:

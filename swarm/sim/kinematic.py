@@ -34,6 +34,7 @@ from swarm.sim import flood_kernel, kernels
 from swarm.sim.controllers import BatchedController
 from swarm.sim.links import Links
 from swarm.sim.policy import FloodPolicy
+from swarm.sim.safety_filter import SafetyFilter
 
 
 class _FloodCall(NamedTuple):
@@ -64,7 +65,8 @@ class KinematicSim:
     initial_poses: ``(B, N, 3)``; adjacency: ``(N, N)`` or ``(B, N, N)`` for a
     fixed graph, or ``disk_radius_m`` for a proximity graph. ``link_faults``: the same schedule in
     every environment (the centralized expert ignores links, so faults do not touch it);
-    ``message_max_age_ticks``: how old, beyond the delay, a message may be (``swarm.core.faults``).
+    ``message_max_age_ticks``: how old, beyond the delay, a message may be (``swarm.core.faults``);
+    ``safety``: the barrier filter wrapping every command (``swarm.sim.safety_filter``).
     """
 
     def __init__(
@@ -77,6 +79,7 @@ class KinematicSim:
         disk_radius_m: float | None = None,
         link_faults: LinkFaults | None = None,
         message_max_age_ticks: int = 1,
+        safety: SafetyFilter | None = None,
     ):
         if (adjacency is None) == (disk_radius_m is None):
             raise ValueError("give exactly one of adjacency and disk_radius_m")
@@ -102,6 +105,7 @@ class KinematicSim:
         self._history: list[tuple[np.ndarray, Links]] = []  # faulty path: (outbox, links), newest first
         self._flood = isinstance(controller, FloodPolicy)
         self._flood_call: _FloodCall | None = None  # the flood kernel's skip state (module docstring)
+        self.safety = safety  # wraps every command after the controller (swarm.sim.safety_filter)
         self.fault_counts = {"dropped_by_fault": 0, "lost_by_fault": 0, "delayed_by_fault": 0}
         """Faulty path, summed over environments and ticks: (robot, neighbour) pairs whose newest
         candidate message the schedule dropped (link down) or lost, and pairs heard with a delay."""
@@ -219,8 +223,12 @@ class KinematicSim:
         return Links(index, weights), inbox
 
     def step(self) -> np.ndarray:
-        """Advance one control period; returns the poses ``(B, N, 3)``, updated in place."""
-        return self.move(self.act())
+        """Advance one control period (the safety filter, if any, after the controller); returns the
+        poses ``(B, N, 3)``, updated in place."""
+        u_world = self.act()
+        if self.safety is not None:
+            u_world = self.safety.apply(self.poses, self.points, u_world)
+        return self.move(u_world)
 
     def move(self, u_world: np.ndarray) -> np.ndarray:
         """The motion half of :meth:`step`: every robot drives with the world velocity ``u_world (B, N, 2)``

@@ -1,0 +1,64 @@
+"""Contacts and clearance of a run's bodies (``metrics.json``), from the trajectory, and the safety
+filter's counts.
+
+In the kinematic engine bodies are discs of radius ``r`` at the axle centres with nothing to stop
+them overlapping; a contact is an overlap: robots i and j at a tick with ``|c_i - c_j| < 2 r``, or a
+robot within ``r`` of an obstacle's surface. ``contacts`` counts (pair, tick) contacts of each kind and
+the ticks with any; ``min_clearance_m`` is the smallest gap met, ``|c_i - c_j| - 2 r`` or the distance
+to an obstacle's surface minus ``r`` (negative: overlap).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from swarm.core.obstacles import Capsules
+
+
+def contact_results(poses: np.ndarray, body_radius_m: float, obstacles: Capsules) -> dict:
+    """``{"contacts": {...}, "min_clearance_m": ...}`` of a trajectory ``poses (T, N, 3)``."""
+    centres = poses[..., :2]
+    count = centres.shape[1]
+    upper = np.triu_indices(count, k=1)
+    robot_robot = robot_obstacle = ticks = 0
+    clearance = np.inf
+    for start in range(0, len(centres), 256):  # bounded memory on long runs of many robots
+        chunk = centres[start : start + 256]
+        gaps = np.linalg.norm(chunk[:, :, None] - chunk[:, None], axis=-1)[:, upper[0], upper[1]]
+        gaps = gaps - 2.0 * body_radius_m
+        walls = obstacles.surface_distance(chunk).reshape(len(chunk), -1) - body_radius_m
+        robot_robot += int(np.count_nonzero(gaps < 0))
+        robot_obstacle += int(np.count_nonzero(walls < 0))
+        ticks += int(np.count_nonzero(np.any(gaps < 0, axis=1) | np.any(walls < 0, axis=1)))
+        clearance = min(clearance, gaps.min(initial=np.inf), walls.min(initial=np.inf))
+    return {
+        "contacts": {"robot_robot": robot_robot, "robot_obstacle": robot_obstacle, "ticks": ticks},
+        "min_clearance_m": None if clearance == np.inf else float(clearance),
+    }
+
+
+def add_safety_results(
+    outcome: dict, poses: np.ndarray, body_radius_m: float, obstacles: Capsules, filter_counts: dict | None
+) -> dict:
+    """``outcome`` with ``contacts``, ``min_clearance_m`` and ``safety_filter`` (None without a filter:
+    ``{"interventions", "infeasible"}`` robot-ticks otherwise)."""
+    outcome.update(contact_results(poses, body_radius_m, obstacles))
+    outcome["safety_filter"] = dict(filter_counts) if filter_counts is not None else None
+    return outcome
+
+
+def safety_summary_line(outcome: dict) -> str | None:
+    """The summary's line on bodies, or None for an outcome without them."""
+    if "contacts" not in outcome:
+        return None
+    contacts, clearance = outcome["contacts"], outcome["min_clearance_m"]
+    line = (
+        f"  bodies: {contacts['ticks']} contact ticks ({contacts['robot_robot']} robot-robot,"
+        f" {contacts['robot_obstacle']} robot-obstacle)"
+    )
+    if clearance is not None:
+        line += f", min clearance {clearance:.3f} m"
+    counts = outcome.get("safety_filter")
+    if counts is not None:
+        line += f"; filter changed {counts['interventions']} commands, {counts['infeasible']} infeasible"
+    return line
