@@ -64,6 +64,8 @@ for path in sorted(Path(sys.argv[1]).glob("*.npz")):
     models.setdefault(load_policy(path).kind, str(path))
 variants = []
 for name, kind in CONTROLLER_KINDS.items():
+    if kind.task != "rendezvous":  # the formation kinds are numpy (no kernel) and need a formation task
+        continue
     variants += [(name, model) for model in models.values()] if "model" in kind.options else [(name, None)]
 
 
