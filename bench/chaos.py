@@ -371,6 +371,26 @@ def _report(out: Path) -> tuple[int, str]:
     return status, errors.getvalue().strip()[-200:]
 
 
+def _all_froze_over(metrics: dict, faults: list[dict], kind: str) -> bool:
+    """Every robot froze (no command: an incident the health block named) over the whole window of each
+    ``kind`` fault, so no message could be sent in it, let alone delayed (seed 200080: a starved
+    realtime run, every agent silent from tick 16 to 52, over a delay from tick 16 to 50)."""
+    period_s = float(metrics.get("control_period_s") or 0.05)
+    robots = (metrics.get("faults") or {}).get("live_robots") or []
+    froze = [i for i in (metrics.get("health") or {}).get("incidents", []) if i.get("kind") == "froze"]
+    windows = [f for f in faults if f["kind"] == kind]
+    if not froze or not windows or not robots:
+        return False
+    for fault in windows:
+        first = int(fault.get("at_s", fault.get("at", 0.0)) / period_s)
+        last = int(fault.get("until_s", fault.get("until", 0.0)) / period_s)
+        for robot in robots:
+            spans = [(i["tick"], i["tick"] + i["ticks"]) for i in froze if i["robot"] == robot]
+            if not any(start <= first + 1 and end >= last for start, end in spans):
+                return False
+    return True
+
+
 def _records(out: Path) -> dict[int, dict]:
     records = {}
     for path in sorted((out / "logs").glob("agent_*.json")):
@@ -470,7 +490,8 @@ def check_run(plan: dict, out: Path, result: dict) -> list[str]:
             violations.append("counts: a link was dropped but no agent counted a dropped message")
         if "packet_loss" in kinds and totals["lost_by_fault"] == 0:
             violations.append("counts: packet loss scheduled but no message counted lost by it")
-        if "delay" in kinds and totals["delayed_by_fault"] == 0:
+        silent = _all_froze_over(metrics, faults, "delay")
+        if "delay" in kinds and totals["delayed_by_fault"] == 0 and not silent:
             violations.append("counts: a delay scheduled but no message counted delayed")
     sent = result["sent"]
     if forge is not None and sent is not None and not process and not result.get("killed"):
