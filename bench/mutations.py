@@ -186,24 +186,21 @@ MUTATIONS = [
         "killed-server-is-bad-input",
         "a run whose server was killed from outside exits 2 (bad input)",
         "swarm/cli.py",
-        """    except RunFailed as error:  # ran, could not complete: not bad input
-        print(f"swarm {args.command}: run failed: {one_line(error)}", file=sys.stderr)
-        return EXIT_NOT_MET""",
-        """    except RunFailed as error:  # ran, could not complete: not bad input
-        print(f"swarm {args.command}: run failed: {one_line(error)}", file=sys.stderr)
-        return EXIT_BAD_INPUT""",
+        r'(if _raised\(error, "swarm\.runtime\.distributed", "RunFailed"\):[^\n]*\n'
+        r"[^\n]*run failed[^\n]*\n\s*return )EXIT_NOT_MET",
+        r"\g<1>EXIT_BAD_INPUT",
         ("tests/test_exit_codes.py::test_a_sim_server_killed_from_outside_is_exit_1_not_bad_input",),
+        regex=True,
     ),
     Mutation(
         "model-not-checked-before-start",
         "the pybullet engine starts its processes without reading the model file first",
         "swarm/runtime/distributed.py",
-        """        try:  # before any process starts: a bad file is bad input, not agents that exit with 1
-            load_policy(model, scenario.robot, scenario.robots.count)
-        except PolicyFormatError as error:
-            raise ScenarioError(f"controller.model: {model}: {error}") from None""",
-        """        del load_policy, PolicyFormatError""",
+        r"(\n\s*)try:  # before any process starts: a bad file is bad input[^\n]*\n\s*load_policy\([^\n]*\)\n"
+        r"\s*except PolicyFormatError as error:\n\s*raise ScenarioError\([^\n]*\) from None",
+        r"\g<1>del load_policy, PolicyFormatError",
         ("tests/test_exit_codes.py::test_a_bad_model_file_is_one_line_exit_2_before_anything_starts",),
+        regex=True,
     ),
     # ------------------------------------------------------------------------ issue 18's mutations
     Mutation(
