@@ -67,7 +67,7 @@ MUTATIONS = [
     return value""",
         """    value = float(value)
     return value""",
-        ("tests/test_fuzz.py",),
+        ("tests/test_wire.py",),
     ),
     Mutation(
         "message-length-check-removed",
@@ -77,7 +77,7 @@ MUTATIONS = [
         return None
 """,
         "",
-        ("tests/test_fuzz.py",),
+        ("tests/test_wire.py",),
     ),
     Mutation(
         "pose-tag-not-checked",

@@ -69,9 +69,7 @@ CENTRAL_TWINS = {  # what robot_agent.central runs for each central kind, on one
     "centralized": lambda poses, args: complete_consensus_velocity(
         controlled_point(poses, ROBOT.offset_m), args.gain
     ),
-    "centralized_mec": lambda poses, args: centralized_mec_velocity(
-        poses, ROBOT.v_max_mps, DT, args.reverse
-    ),
+    "centralized_mec": lambda poses, args: centralized_mec_velocity(poses, ROBOT.v_max_mps, DT, args.reverse),
 }
 
 EXAMPLE_FAULT_VALUES = {"at": 0.3, "until": 0.9, "p": 0.4, "ticks": 2, "direction": "one"}
@@ -270,12 +268,7 @@ def replay(
     return {"graph_changes": graph_changes, "moved_m": moved, "fault_counts": dict(sim.fault_counts)}
 
 
-KNOWN_DRIFTS = {
-    (model_kind, "matrix"): "the feature GNN's batched features weight each message by its link weight"
-    " (swarm.sim.features.gather_sums); the per-robot form counts every message heard once"
-    " (robot_features, Policy.act_one): they differ on weighted graphs"
-    for model_kind in ("gnn/gnn", "gnn/two_branch", "gnn/model1", "gnn/model2", "gnn/gnn_mlp")
-}
+KNOWN_DRIFTS: dict[tuple[str, str], str] = {}
 """Twin drifts this suite found and that are not fixed yet: strict xfails, so a fix shows up."""
 
 

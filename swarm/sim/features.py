@@ -132,15 +132,23 @@ def robot_features(
     neighbour_messages: np.ndarray,
     spec: FeatureSpec,
     robot_count: int = 0,
+    weights: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """One robot's features ``(K, 2)`` and world ``Phi`` ``(K, 2)`` from the ``(m, 2K)`` messages it heard.
+    """One robot's features ``(K, 2)`` and world ``Phi`` ``(K, 2)`` from the ``(m, 2K)`` messages it heard,
+    each weighted by its link's weight ``w_ij`` (``weights (m,)``; None: every link 1), as
+    :func:`gather_sums` weights them: ``sum_j w_ij m_j`` and ``c_i = sum_j w_ij``.
 
     ``robot_count`` is needed only by the ``n_minus_1`` normaliser.
     """
     if spec.normaliser == "n_minus_1" and robot_count < 2:
         raise ValueError("the n_minus_1 normaliser needs robot_count (the swarm size N)")
     neighbour_messages = np.asarray(neighbour_messages, dtype=np.float64).reshape(-1, spec.message_dim)
-    sums = neighbour_messages.sum(axis=0)
-    heard_weight = np.asarray(float(len(neighbour_messages)))
+    if weights is None:
+        sums = neighbour_messages.sum(axis=0)
+        heard_weight = np.asarray(float(len(neighbour_messages)))
+    else:
+        link_weights = np.asarray(weights, dtype=np.float64).reshape(-1)
+        sums = (link_weights[:, None] * neighbour_messages).sum(axis=0)
+        heard_weight = np.asarray(link_weights.sum())
     phi_world = world_features(np.asarray(point, dtype=np.float64), sums, heard_weight, spec, robot_count)
     return world_to_local(phi_world, np.asarray(pose)[2]), phi_world

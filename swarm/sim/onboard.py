@@ -87,8 +87,8 @@ def wheels_one(u_world: Sequence[float], theta_rad: float, robot: RobotParams) -
 
 
 class _PolicyAdapter:
-    """A ``swarm.sim.policy.Policy`` (``act_one(pose, neighbour_messages)``) behind the onboard interface;
-    the policy ignores link weights (it learned from the graph structure)."""
+    """A ``swarm.sim.policy.Policy`` behind the onboard interface: each heard message weighted by its
+    link's weight, as the batched form (``swarm.sim.features.gather_sums``) weights it."""
 
     def __init__(self, policy: Any):
         self.policy = policy
@@ -97,7 +97,7 @@ class _PolicyAdapter:
     def act_one(
         self, pose: np.ndarray, neighbour_messages: np.ndarray, weights: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
-        u_world, message = self.policy.act_one(pose, neighbour_messages)
+        u_world, message = self.policy.act_one(pose, neighbour_messages, weights=weights)
         return np.asarray(u_world, dtype=np.float64), np.asarray(message, dtype=np.float64)
 
 

@@ -132,13 +132,18 @@ class FeatureController:
         return u_world, messages(points, phi_world, u_world, self.spec)
 
     def act_one(
-        self, pose: np.ndarray, neighbour_messages: np.ndarray, robot_count: int | None = None
+        self,
+        pose: np.ndarray,
+        neighbour_messages: np.ndarray,
+        robot_count: int | None = None,
+        weights: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """One robot: pose ``(3,)`` and the ``(m, D)`` messages it heard -> ``u_world (2,)``, message."""
+        """One robot: pose ``(3,)`` and the ``(m, D)`` messages it heard (over links of ``weights (m,)``;
+        None: every link 1) -> ``u_world (2,)``, message."""
         pose = np.asarray(pose, dtype=np.float64)
         point = controlled_point(pose, self.robot.offset_m)
         count = self.robot_count if robot_count is None else robot_count
-        features_local, phi_world = robot_features(pose, point, neighbour_messages, self.spec, count)
+        features_local, phi_world = robot_features(pose, point, neighbour_messages, self.spec, count, weights)
         u_local = saturate_local_velocity(self.forward(features_local), self.robot)
         u_world = rotate(u_local, pose[2])
         if np.size(neighbour_messages) == 0:  # heard nobody: holds still, as the batched ``act``
@@ -239,13 +244,19 @@ class Policy(FeatureController):
             raise PolicyFormatError(f"not a usable policy ({type(error).__name__}: {error})") from None
 
     def act_one(
-        self, pose: np.ndarray, neighbour_messages: np.ndarray, robot_count: int | None = None
+        self,
+        pose: np.ndarray,
+        neighbour_messages: np.ndarray,
+        robot_count: int | None = None,
+        weights: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """``FeatureController.act_one``; for the gated filter on degree-normalised ``m`` features, the
-        same arithmetic in plain floats where numpy per call costs more than the work (a robot's tick)."""
+        """``FeatureController.act_one``; for the gated filter on degree-normalised ``m`` features over
+        links of weight 1, the same arithmetic in plain floats where numpy per call costs more than the
+        work (a robot's tick)."""
         spec = self.spec
-        if self.kind != "gnn" or spec.normaliser != "degree" or spec.phi_source != "m":
-            return super().act_one(pose, neighbour_messages, robot_count)
+        unit_links = weights is None or bool(np.all(np.asarray(weights) == 1.0))
+        if self.kind != "gnn" or spec.normaliser != "degree" or spec.phi_source != "m" or not unit_links:
+            return super().act_one(pose, neighbour_messages, robot_count, weights)
         x, y, theta = float(pose[0]), float(pose[1]), float(pose[2])
         c, s = math.cos(theta), math.sin(theta)
         px, py = x + self.robot.offset_m * c, y + self.robot.offset_m * s
@@ -531,10 +542,15 @@ class FloodPolicy:
         return outputs.u_world, outputs.outbox
 
     def act_one(
-        self, pose: np.ndarray, neighbour_messages: np.ndarray, robot_count: int | None = None
+        self,
+        pose: np.ndarray,
+        neighbour_messages: np.ndarray,
+        robot_count: int | None = None,
+        weights: np.ndarray | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """One robot, with the memory this object keeps: pose ``(3,)``, the ``(m, 2P+1)`` messages it
-        heard -> ``u_world (2,)``, its message."""
+        heard -> ``u_world (2,)``, its message. ``weights`` is unused: a max flood weighs no link (nor
+        does the batched kernel)."""
         pose = np.asarray(pose, dtype=np.float64)
         heard = np.asarray(neighbour_messages, dtype=np.float64).reshape(-1, self.message_dim)
         values = self.own_values(pose[:2])
