@@ -202,6 +202,14 @@ MUTATIONS = [
         ("tests/test_exit_codes.py::test_a_bad_model_file_is_one_line_exit_2_before_anything_starts",),
         regex=True,
     ),
+    Mutation(
+        "agent-message-ring-of-16",
+        "an agent's message ring holds 16 samples, as it once did: a flood pushes genuine ones out",
+        "robot_agent/agent.py",
+        "MESSAGE_RING = 8192",
+        "MESSAGE_RING = 16",
+        ("tests/test_outside_attacks.py::test_a_flood_pushes_no_genuine_sample_out",),
+    ),
     # ------------------------------------------------------------------------ issue 18's mutations
     Mutation(
         "pose-window-open-before-first-pose",

@@ -209,7 +209,7 @@ def attack(args: argparse.Namespace) -> dict:
     Every forged sample carries the attachment of the genuine sample it was made from (copying what
     a subscriber sees is all an outsider can do to look genuine).
     * ``flood-pose`` / ``flood-msg``: ``--rate`` samples per second (a genuine one of robot ``--robot``
-      with its tick moved +1) until tick ``--at-tick`` + ``--ticks``;
+      with its tick moved +1) until tick ``--at-tick`` + ``--ticks`` or ``--most`` samples;
     * ``zombie``: a liveliness token on agent ``--robot``'s key, held until the run ends;
     * ``config``: a queryable on every robot's config key answering the sim's own configuration with
       ``gain`` set to -1 (declared once the sim answers; the agents must come after it).
@@ -297,13 +297,13 @@ def attack(args: argparse.Namespace) -> dict:
         elif kind in ("flood-pose", "flood-msg"):
             source = newest_pose if kind == "flood-pose" else newest_msg
             key = pose_key(run, robot) if kind == "flood-pose" else msg_key(run, robot)
-            if now_tick >= args.at_tick + args.ticks:
+            if now_tick >= args.at_tick + args.ticks or report["sent"] >= args.most:
                 done = True
                 continue
             if source is None:
                 continue
             forged, tag = moved(source, 1), tag_of[source]
-            while time.monotonic() >= next_s:  # paced: catches up on the time it was descheduled
+            while time.monotonic() >= next_s and report["sent"] < args.most:  # paced: catches up
                 put(key, forged, tag)
                 report["sent"] += 1
                 next_s += period_s
@@ -352,6 +352,7 @@ def main(argv: list[str] | None = None) -> int:
     a.add_argument("--at-tick", type=int, default=20)
     a.add_argument("--ticks", type=int, default=100, help="flood length in ticks")
     a.add_argument("--rate", type=float, default=12_000.0, help="flood samples per second")
+    a.add_argument("--most", type=int, default=10**9, help="flood: stop after this many samples")
     a.add_argument("--ready", default="/dev/null", help="file written once a config queryable is up")
     a.add_argument("--credentials")
     a.add_argument("--timeout", type=float, default=240.0)

@@ -143,33 +143,46 @@ def test_a_same_tick_message_replay_does_not_overwrite_the_genuine_one(clean, tm
         assert _accounted(messages) == messages["taken"], (i, messages)
 
 
+FLOOD = 6000
+"""Forged samples a flood test sends: under the agents' ring size (8192, robot_agent.agent), with
+room for the genuine ones that arrive meanwhile."""
+
+
 @pytest.mark.parametrize(
     ("kind", "robot", "stream"), [("flood-pose", 5, "poses"), ("flood-msg", 2, "messages")]
 )
 def test_a_flood_pushes_no_genuine_sample_out(clean, tmp_path, kind, robot, stream):
-    """12,000 forged samples per second on one key for 60 ticks: every one is read and named, no ring
-    was ever full (8192 samples: 0.68 s of this flood; the 16 of before lost genuine ones), nothing
-    genuine was lost and nothing changed."""
+    """Forged samples at 12,000 per second on one key for 60 ticks, at most 6000: every one is read and
+    named, every genuine one taken and nothing changed. The agents' rings hold 8192 samples, so this
+    holds however starved the receiver is during the flood (the rings of 16 of before lost genuine
+    ones within 2 ms); the oracle is the count of what was sent, never the machine's speed."""
     out = tmp_path / kind
-    attack = _attacker(out, kind, "--robot", str(robot), "--at-tick", str(AT_TICK), "--ticks", "60")
+    attack = _attacker(
+        out,
+        kind,
+        "--robot",
+        str(robot),
+        "--at-tick",
+        str(AT_TICK),
+        "--ticks",
+        str(STEPS - AT_TICK - 20),
+        "--most",
+        str(FLOOD),
+    )
     report, lines = _run(_scenario(tmp_path), out, attack)
-    assert report is not None and report["sent"] > 0
+    assert report is not None and 0 < report["sent"] <= FLOOD  # however many it managed: the oracle
     records = _records(out)
     receivers = [robot] if stream == "poses" else [(robot - 1) % COUNT, (robot + 1) % COUNT]
-    full = sum(records[i][stream]["ring_full"] for i in range(COUNT))
-    assert full == 0, [records[i][stream] for i in receivers]
     for i in receivers:
         counted = records[i][stream]
         assert _accounted(counted) == counted["taken"], (i, counted)  # every sample read is named
-        if counted["ring_full"] == 0:  # nothing was pushed out: every forged one was read and rejected
-            assert counted["unauthenticated"] == report["sent"], (i, counted, report)
-            senders = [(i - 1) % COUNT, (i + 1) % COUNT]  # the cycle: what i's neighbours sent
-            genuine = sum(records[j]["commands_sent"] for j in senders) if stream == "messages" else STEPS
-            assert counted["received"] + counted["unread"] == genuine, (i, counted, genuine)
-    if full == 0:
-        _same_trajectory(clean, lines)
-        for i, agent in records.items():
-            assert agent["ticks"] == STEPS, i
+        assert counted["unauthenticated"] == report["sent"], (i, counted, report)  # none pushed out
+        senders = [(i - 1) % COUNT, (i + 1) % COUNT]  # the cycle: what i's neighbours sent
+        genuine = sum(records[j]["commands_sent"] for j in senders) if stream == "messages" else STEPS
+        assert counted["received"] + counted["unread"] == genuine, (i, counted, genuine)
+    _same_trajectory(clean, lines)
+    for i, agent in records.items():
+        assert agent["ticks"] == STEPS, i
 
 
 def test_a_zombie_token_stalls_the_swarm_for_a_few_deadlines_only(tmp_path):
