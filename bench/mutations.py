@@ -273,6 +273,16 @@ MUTATIONS = [
 ]
 
 
+def _commit() -> str:
+    """The checkout's commit, with ``+changes`` when its tracked files differ from it."""
+
+    def git(*args: str) -> str:
+        return subprocess.run(["git", *args], cwd=PROJECT_ROOT, capture_output=True, text=True).stdout.strip()
+
+    head = git("rev-parse", "--short", "HEAD") or "unknown"
+    return head + ("+changes" if git("status", "--porcelain", "--untracked-files=no") else "")
+
+
 def _copy(destination: Path) -> None:
     ignore = shutil.ignore_patterns(
         ".git", "runs", "__pycache__", ".pytest_cache", ".venv", "*.egg-info", "data"
@@ -386,12 +396,13 @@ def main(argv: list[str] | None = None) -> int:
     command = "python bench/mutations.py" + (" --baseline" if args.baseline else "")
     command += f" --only {' '.join(args.only)}" if args.only else ""
     out.with_suffix(".json").write_text(
-        json.dumps({"command": command, "mutations": results}, indent=1) + "\n"
+        json.dumps({"command": command, "commit": _commit(), "mutations": results}, indent=1) + "\n"
     )
     lines = [
         "# Mutation check",
         "",
-        f"`{command}` ({time.strftime('%Y-%m-%d %H:%M', time.gmtime())} UTC). Each mutation is applied to a"
+        f"`{command}` ({time.strftime('%Y-%m-%d %H:%M', time.gmtime())} UTC, on commit {_commit()}). Each"
+        " mutation is applied to a"
         " temporary copy of the project; its tests must fail (`bench/mutations.py`).",
         "",
         "| mutation | what it breaks | tests | result | the failing test and why (pytest) |",
