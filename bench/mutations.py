@@ -270,6 +270,28 @@ MUTATIONS = [
         ("tests/test_circle.py",),
         regex=True,
     ),
+    Mutation(
+        "mec-flood-steers-its-controlled-point",
+        "mec_flood drives the point 0.2 m ahead of the axle to the centre, not the axle that success "
+        "judges (issue 18: axles left up to 2 l apart)",
+        "swarm/core/mec.py",
+        r"(if radius > 0\.0:\n\s*ux, uy = drive_toward\(\n\s*)poses\[env, i, 0\],\n(\s*)poses\[env, i, 1\],",
+        r"\g<1>poses[env, i, 0] + 0.2 * math.cos(poses[env, i, 2]),\n\g<2>"
+        r"poses[env, i, 1] + 0.2 * math.sin(poses[env, i, 2]),",
+        ("tests/test_mec.py::test_the_baselines_gather_the_axles_whatever_the_offset",),
+        regex=True,
+    ),
+    Mutation(
+        "scaled-steering-ignores-the-run-period",
+        "a flood GNN with scaled steering measures distances at its training period whatever the "
+        "run's control period (issue 18: 0.05 m never met at T = 0.2 s)",
+        "swarm/sim/policy.py",
+        r"self\.control_period_s = float\(trained_period_s if control_period_s is None else "
+        r"control_period_s\)",
+        "self.control_period_s = float(trained_period_s)",
+        ("tests/test_flood.py::test_the_shipped_gnn_meets_small_thresholds_and_fast_robots",),
+        regex=True,
+    ),
 ]
 
 

@@ -229,6 +229,7 @@ def replay(
     faults: LinkFaults | None = None,
     max_age: int = 1,
     restart_with: np.ndarray | None = None,
+    ticks: int = TICKS,
 ) -> dict:
     """Run the engine and the per-robot form side by side on the engine's poses, comparing every tick's
     commands and messages; environment 1 restarts from ``restart_with`` at ``RESTART_TICK``. Returns
@@ -251,7 +252,7 @@ def replay(
     tolerance_u, tolerance_m = TOLERANCE.get(_variant_id(variant), DEFAULT_TOLERANCE)
     scale = 1.0 + float(np.abs(start[..., :2]).max())
     graph_changes, moved = 0, 0.0
-    for tick in range(TICKS):
+    for tick in range(ticks):
         if restart_with is not None and tick == RESTART_TICK:
             sim.restart(np.array([1]), restart_with[1:2])
             twin.restart(1, tick)
@@ -344,6 +345,31 @@ def test_batched_equals_per_robot_under_every_link_fault(variant, fault):
     assert done["graph_changes"] >= 2
     if not CONTROLLER_KINDS[variant[0]].central:  # the centralized kinds use no links
         assert sum(done["fault_counts"].values()) > 0  # the fault acted
+
+
+@pytest.mark.parametrize("variant", VARIANTS, ids=VARIANT_IDS)
+def test_batched_equals_per_robot_on_a_fixed_line_with_every_link_delayed(variant):
+    """Issue 18's out-of-bounds read (line of 50, 5-tick delay): on a fixed graph the flood kernel skips
+    the messages it has already merged, and under a delay the inbox holds delayed columns past the N
+    robots' own. The engine takes the skip only without link faults (``KinematicSim._flood_act``), so
+    under a delay every column is merged; ``tests/test_boundscheck.py`` runs the kernel with bounds
+    checks. Here: a line, every link delayed 3 ticks, and ticks enough for the flood to settle."""
+    scenario = parse_scenario(
+        {
+            "name": "contract-delay",
+            "robots": {"count": COUNT},
+            "topology": {"kind": "line"},
+            "controller": {"kind": "local_consensus"},
+            "sim": {"engine": "kinematic", "message_max_age_ticks": 1},
+            "faults": [{"kind": "delay", "ticks": 3, "at": 0.0}],
+        },
+        "contract-delay.yaml",
+    )
+    faults = LinkFaults.from_scenario(scenario)
+    done = replay(variant, far_start(7), "line", faults, max_age_of(scenario.sim), ticks=4 * TICKS)
+    assert done["moved_m"] > 1e-3
+    if not CONTROLLER_KINDS[variant[0]].central:
+        assert done["fault_counts"]["delayed_by_fault"] > 0
 
 
 @pytest.mark.parametrize("fault", PROCESS_FAULTS)
