@@ -75,7 +75,7 @@ def write(runs: list[dict], args: argparse.Namespace, commit: str, out: Path) ->
         "",
         f"`python bench/loaded_suite.py --runs {args.runs} --busy {args.busy}` at commit {commit}, "
         f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, on {os.cpu_count()} cores: each run is "
-        f"`CI=true .venv/bin/python -m pytest -n 2` beside {args.busy} processes spinning for its whole time.",
+        f"`CI=true .venv/bin/python -m pytest -n 2` beside {args.busy} processes spinning all the time.",
         "",
         "| run | exit | wall time | pytest | failed tests |",
         "|---|---|---|---|---|",
@@ -101,9 +101,8 @@ def main(argv: list[str] | None = None) -> int:
     commit = subprocess.run(
         ["git", "rev-parse", "--short", "HEAD"], cwd=PROJECT_ROOT, capture_output=True, text=True
     ).stdout.strip()
-    dirty = subprocess.run(
-        ["git", "status", "--porcelain", "--untracked-files=no"], cwd=PROJECT_ROOT, capture_output=True, text=True
-    ).stdout.strip()
+    status = ["git", "status", "--porcelain", "--untracked-files=no"]
+    dirty = subprocess.run(status, cwd=PROJECT_ROOT, capture_output=True, text=True).stdout.strip()
     commit += "+changes" if dirty else ""
     args.out.parent.mkdir(parents=True, exist_ok=True)
     log_dir = PROJECT_ROOT / "runs"
