@@ -238,6 +238,12 @@ def robots(args) -> dict:
                 v, w = twist if twist is not None else (0.0, 0.0)
                 x, y, th = poses[i]
                 poses[i] = [x + v * math.cos(th) * dt, y + v * math.sin(th) * dt, th + w * dt]
+        # a starved agent's last commands may come after the last tick: wait for one per robot and tick
+        # (or 10 s), then a moment for any extra one
+        flush_until = time.monotonic() + 10.0
+        with cond:
+            while len(seen) < n * args.ticks and time.monotonic() < flush_until:
+                cond.wait(0.05)
         time.sleep(0.5)
         for entity in (*subs, live):
             entity.undeclare()
