@@ -317,13 +317,18 @@ def _link_faults(kind: str, topology: str) -> tuple[LinkFaults, int]:
     faults = [fault]
     if kind == "restore_link":
         faults = [{"kind": "drop_link", "at": 0.1, "link": [0, 1]}, {**fault, "at": 0.6}]
+    return _scenario_faults(faults, topology, max_age_ticks=2)
+
+
+def _scenario_faults(faults: list[dict], topology: str, max_age_ticks: int) -> tuple[LinkFaults, int]:
+    """``faults`` on ``topology`` read through the scenario schema, and the message age."""
     scenario = parse_scenario(
         {
             "name": "contract",
             "robots": {"count": COUNT},
             "topology": {"kind": topology, **({"radius": RADIUS_M} if topology == "disk" else {})},
             "controller": {"kind": "local_consensus"},
-            "sim": {"engine": "kinematic", "message_max_age_ticks": 2},
+            "sim": {"engine": "kinematic", "message_max_age_ticks": max_age_ticks},
             "faults": faults,
             "faults_seed": 5,
         },
@@ -354,19 +359,8 @@ def test_batched_equals_per_robot_on_a_fixed_line_with_every_link_delayed(varian
     robots' own. The engine takes the skip only without link faults (``KinematicSim._flood_act``), so
     under a delay every column is merged; ``tests/test_boundscheck.py`` runs the kernel with bounds
     checks. Here: a line, every link delayed 3 ticks, and ticks enough for the flood to settle."""
-    scenario = parse_scenario(
-        {
-            "name": "contract-delay",
-            "robots": {"count": COUNT},
-            "topology": {"kind": "line"},
-            "controller": {"kind": "local_consensus"},
-            "sim": {"engine": "kinematic", "message_max_age_ticks": 1},
-            "faults": [{"kind": "delay", "ticks": 3, "at": 0.0}],
-        },
-        "contract-delay.yaml",
-    )
-    faults = LinkFaults.from_scenario(scenario)
-    done = replay(variant, far_start(7), "line", faults, max_age_of(scenario.sim), ticks=4 * TICKS)
+    faults, max_age = _scenario_faults([{"kind": "delay", "ticks": 3, "at": 0.0}], "line", max_age_ticks=1)
+    done = replay(variant, far_start(7), "line", faults, max_age, ticks=4 * TICKS)
     assert done["moved_m"] > 1e-3
     if not CONTROLLER_KINDS[variant[0]].central:
         assert done["fault_counts"]["delayed_by_fault"] > 0
