@@ -41,7 +41,7 @@ def run_once(index: int, busy: int, log_dir: Path) -> dict:
     try:
         with log.open("w") as out:
             code = subprocess.call(
-                [str(PROJECT_ROOT / ".venv" / "bin" / "python"), "-m", "pytest", "-n", "2", "-q", "-rf"],
+                [str(PROJECT_ROOT / ".venv" / "bin" / "python"), "-m", "pytest", "-n", "2"],
                 cwd=PROJECT_ROOT,
                 env={**os.environ, "CI": "true"},
                 stdout=out,
