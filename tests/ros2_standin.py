@@ -219,6 +219,7 @@ def robots(args) -> dict:
             started = ready()
             tokens_at_start = sorted(tokens)
         ticks_missed = 0
+        missed_by_robot = [0] * n  # ticks stepped without this robot's twist (it came late or never)
         for k in range(args.ticks if started else 0):
             with cond:
                 for i in range(n):
@@ -235,6 +236,8 @@ def robots(args) -> dict:
                 got = dict(twists)
             ticks_missed += any(t is None for t in got.values())
             for i, twist in got.items():
+                missed_by_robot[i] += twist is None
+            for i, twist in got.items():
                 v, w = twist if twist is not None else (0.0, 0.0)
                 x, y, th = poses[i]
                 poses[i] = [x + v * math.cos(th) * dt, y + v * math.sin(th) * dt, th + w * dt]
@@ -250,6 +253,7 @@ def robots(args) -> dict:
     return {
         "started": started,
         "ticks_missed": ticks_missed,
+        "missed_by_robot": missed_by_robot,
         "final_poses": poses,
         "cmd_vel": seen,
         "tokens_at_start": tokens_at_start,

@@ -191,7 +191,7 @@ def fuzz(endpoint: str, run: str, count: int, steps: int, seed: int, out: Path) 
             continue
         if first is None:
             first = tick_now
-            last = max(first + 1, steps - STOP_BEFORE_END_TICKS - 10)  # all sent by this tick
+            last = max(first + 1, steps // 2)  # all sent by this tick: half a run for them to arrive
         if tick_now >= steps - STOP_BEFORE_END_TICKS:
             break
         due = math.ceil(TARGET_SAMPLES * min(1.0, (tick_now - first + 1) / (last - first)))
@@ -223,11 +223,18 @@ def fuzz(endpoint: str, run: str, count: int, steps: int, seed: int, out: Path) 
     while not flushed and time.monotonic() < flush_deadline_s:
         replies = session.get(f"swarm/{run}/config/0", timeout=5.0)
         flushed = any(reply.ok is not None for reply in replies)
+    flushed_tick = None  # the run's tick once the router had taken every put: the next pose's
+    pose_deadline_s = time.monotonic() + 10
+    while flushed and flushed_tick is None and time.monotonic() < pose_deadline_s:
+        while (sample := poses.try_recv()) is not None:  # the queued ones are older, the last is newest
+            flushed_tick = outside.tick_of(sample.payload.to_bytes())
+        time.sleep(0.01)
     poses.undeclare()
     for publisher in publishers.values():
         publisher.undeclare()
     session.close()
-    out.write_text(json.dumps({"sent": sent, "total": total, "kinds": kinds, "first_tick": first}))
+    report = {"sent": sent, "total": total, "kinds": kinds, "first_tick": first, "flushed_tick": flushed_tick}
+    out.write_text(json.dumps(report))
 
 
 # ----------------------------------------------------------------------------- the test
@@ -300,6 +307,11 @@ def test_a_run_survives_ten_thousand_malformed_replayed_and_forward_dated_sample
     # an agent whose session the router dropped (lease expired: a process starved for a second on a
     # loaded machine) and that reconnected lost what was in flight meanwhile; the server saw it
     reconnected = {e["robot"] for e in stats["agent_events"] if e["event"] in ("gone", "back")}
+    # every forged sample was with the router by this tick (its flush query answered); one the fuzzer,
+    # starved on a loaded machine, put too near the end may reach an agent that has left (666 of 667
+    # forged poses once in CI, with the fuzzer done 20 ticks before the end; it now sends by mid-run)
+    flushed_tick = report["flushed_tick"]
+    flushed_early = flushed_tick is not None and flushed_tick < steps - STOP_BEFORE_END_TICKS
     for i, agent in records.items():
         for stream, senders, genuine in (
             ("poses", [i], steps),  # one real pose per tick
@@ -314,7 +326,7 @@ def test_a_run_survives_ten_thousand_malformed_replayed_and_forward_dated_sample
                 assert arrivals <= genuine + forged, (i, stream, counted, forged, genuine)
                 assert agent["sim_lost"] >= 2 or reconnected & set(senders), (i, agent["sim_lost"])
                 continue
-            if counted["ring_full"] == 0:  # no drain found the ring full: nothing was pushed out
+            if counted["ring_full"] == 0 and flushed_early:  # nothing pushed out, nothing came too late
                 assert arrivals == genuine + forged, (i, stream, counted, forged, genuine)
             else:
                 assert arrivals <= genuine + forged, (i, stream, counted, forged, genuine)

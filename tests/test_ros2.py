@@ -273,6 +273,8 @@ def test_agents_gather_six_ros2_robots_of_the_standin(tmp_path):
             json.dumps(poses),
             "--ticks",
             "160",
+            "--tick-timeout",
+            "5",
         ],
         env=_env(),
     )
@@ -309,14 +311,18 @@ def test_agents_gather_six_ros2_robots_of_the_standin(tmp_path):
     assert spread(start) > 2.0 and spread(final) < 0.05  # gathered (axle centres, no bodies)
     twist_hash = STORE.hash_rihs01(ros2.TWIST)
     samples = result["cmd_vel"]
-    assert len(samples) == 6 * 160
     for robot in range(6):
         mine = [s for s in samples if s["robot"] == robot]
+        # one command per odometry the agent used: a robot the stand-in stepped without (its twist late
+        # by --tick-timeout on a loaded machine) may have found two odometries queued and used the newer
+        # only (959 of 960 once in CI); no stall, no skip
+        missed = result["missed_by_robot"][robot]
+        assert 160 - missed <= len(mine) <= 160, (robot, len(mine), missed)
         for sample in mine:
             assert sample["key"] == f"7/robot_{robot}/cmd_vel/geometry_msgs::msg::dds_::Twist_/{twist_hash}"
             assert sample["bytes"] == 52 and sample["header"] == "00010000" and "cdr_error" not in sample
             assert sample["attachment"]["bytes"] == 33 and "error" not in sample["attachment"]
-        assert [s["attachment"]["sequence_number"] for s in mine] == list(range(1, 161))
+        assert [s["attachment"]["sequence_number"] for s in mine] == list(range(1, len(mine) + 1))
         assert len({s["attachment"]["gid"] for s in mine}) == 1
         stamps = [s["attachment"]["source_timestamp_ns"] for s in mine]
         assert stamps == sorted(stamps) and stamps[0] > 1.6e18  # wall clock, ns
@@ -325,7 +331,9 @@ def test_agents_gather_six_ros2_robots_of_the_standin(tmp_path):
         assert any(t.endswith(f"/NN/%/%robot_{robot}/swarm_agent_{robot}") for t in nodes)
     for robot in range(6):
         record = json.loads((tmp_path / "agents" / f"agent_{robot}.json").read_text())
-        assert record["exit_reason"] == "done" and record["ticks"] == 160
+        assert record["exit_reason"] == "done" and record["commands_sent"] == record["ticks"]
+        sent_to_standin = sum(s["robot"] == robot for s in samples)
+        assert record["ticks"] == sent_to_standin and record["last_tick"] == 159, record  # ran to the end
         assert record["heavy_modules"] == []  # no torch, pybullet or numba on a robot's host
 
 
