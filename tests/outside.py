@@ -15,6 +15,7 @@ command) with its tick moved ``A`` ticks ahead, and writes what it sent.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import re
 import struct
@@ -156,7 +157,12 @@ def forge(args: argparse.Namespace) -> dict:
                         "msg": message(tick, [0.0] * args.dim),
                     }[kind]
                 forged = moved(genuine[kind], ahead)
-                session.put(key, forged, congestion_control=zenoh.CongestionControl.BLOCK)
+                tag = None  # without the run key the tag cannot be made: a receiver drops it unread
+                if args.run_key is not None:  # an insider: keyed BLAKE2b-128 of key, NUL and payload
+                    digest = hashlib.blake2b(key=bytes.fromhex(args.run_key), digest_size=16)
+                    digest.update(key.encode() + b"\x00" + forged)
+                    tag = digest.digest()
+                session.put(key, forged, attachment=tag, congestion_control=zenoh.CongestionControl.BLOCK)
                 sent[kind] = {"key": key, "tick": tick_of(forged), "at_tick": tick}
         time.sleep(0.001)
     # A query the sim answers, asked after the last put, is answered once the router has taken every
@@ -204,7 +210,8 @@ def attack(args: argparse.Namespace) -> dict:
     * ``future2``: two poses dated 10^6 and 10^6 + 1 ticks ahead, put on the wildcard pose key;
     * ``walk``: 40 poses of robot ``--robot`` dated k+1 ... k+40, in one burst;
     * ``near``: poses dated k+1 and k+2 on the wildcard pose key;
-    * ``replay``: agent ``--robot``'s newest message put again unchanged, and again with other values;
+    * ``replay``: agent ``--robot``'s messages, each put again unchanged and again with other values the
+      moment it is seen (before the next genuine one), ``--ticks`` of them;
 
     Every forged sample carries the attachment of the genuine sample it was made from (copying what
     a subscriber sees is all an outsider can do to look genuine).
@@ -249,6 +256,7 @@ def attack(args: argparse.Namespace) -> dict:
     done = False
     newest_pose: bytes | None = None
     newest_msg: bytes | None = None
+    replayed_tick = -1  # replay: the tick of the last message put again
     tag_of: dict[bytes, bytes | None] = {}
     period_s = 1.0 / args.rate if args.rate else 0.0
 
@@ -290,10 +298,15 @@ def attack(args: argparse.Namespace) -> dict:
                 report["sent"] += 1
             report["at_tick"], done = now_tick, True
         elif kind == "replay" and newest_msg is not None:
-            put(msg_key(run, robot), newest_msg, tag_of[newest_msg])  # the genuine sample again
-            put(msg_key(run, robot), with_values(newest_msg, 1000.0), tag_of[newest_msg])
-            report.update(sent=2, at_tick=tick_of(newest_msg))
-            done = True
+            msg_tick = tick_of(newest_msg)
+            if msg_tick is not None and msg_tick > replayed_tick:  # each one as soon as it is seen,
+                put(msg_key(run, robot), newest_msg, tag_of[newest_msg])  # before the next genuine one
+                put(msg_key(run, robot), with_values(newest_msg, 1000.0), tag_of[newest_msg])
+                replayed_tick = msg_tick
+                report["copies"] = report.get("copies", 0) + 1
+                report["sent"] += 2
+                report.setdefault("at_tick", msg_tick)
+                done = report["copies"] >= args.ticks
         elif kind in ("flood-pose", "flood-msg"):
             source = newest_pose if kind == "flood-pose" else newest_msg
             key = pose_key(run, robot) if kind == "flood-pose" else msg_key(run, robot)
@@ -338,6 +351,7 @@ def main(argv: list[str] | None = None) -> int:
     f.add_argument("--dim", type=int, default=2, help="message length when none was seen (--blind)")
     f.add_argument("--blind", action="store_true", help="forge a key even if no genuine sample was seen")
     f.add_argument("--credentials")
+    f.add_argument("--run-key", help="sign the forged samples with this run key (hex): an insider")
     f.add_argument("--timeout", type=float, default=120.0)
     f.add_argument("--quiet-s", type=float, default=10.0, help="give up after this long without a pose")
     f.add_argument("--out", type=Path, required=True)
@@ -350,7 +364,7 @@ def main(argv: list[str] | None = None) -> int:
     a.add_argument("--robot", type=int, default=0)
     a.add_argument("--count", type=int, default=6, help="robots (config)")
     a.add_argument("--at-tick", type=int, default=20)
-    a.add_argument("--ticks", type=int, default=100, help="flood length in ticks")
+    a.add_argument("--ticks", type=int, default=100, help="flood length in ticks; replay: messages")
     a.add_argument("--rate", type=float, default=12_000.0, help="flood samples per second")
     a.add_argument("--most", type=int, default=10**9, help="flood: stop after this many samples")
     a.add_argument("--ready", default="/dev/null", help="file written once a config queryable is up")

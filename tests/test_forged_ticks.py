@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -43,7 +44,27 @@ def _scenario(tmp_path: Path, acl: bool) -> Path:
     return path
 
 
-def _run(scenario: Path, out: Path, forge: list[str] | None, credentials: bool = False) -> tuple[dict, list]:
+def _run_key_of_the_server(out: Path, timeout_s: float = 120.0) -> str:
+    """The run key from the environment of this run's sim server process (what an insider on a
+    robot's host can read): found in /proc by its ``--out`` argument."""
+    deadline_s = time.monotonic() + timeout_s
+    while time.monotonic() < deadline_s:
+        for proc in Path("/proc").iterdir():
+            try:
+                argv = (proc / "cmdline").read_bytes().split(b"\0")
+                if b"sim_server" in argv and str(out).encode() in argv:
+                    environ = (proc / "environ").read_bytes().split(b"\0")
+                    key = next(e for e in environ if e.startswith(b"SWARM_RUN_KEY="))
+                    return key.split(b"=", 1)[1].decode()
+            except (OSError, StopIteration):
+                continue
+        time.sleep(0.05)
+    raise AssertionError(f"no sim server process for {out}")
+
+
+def _run(
+    scenario: Path, out: Path, forge: list[str] | None, credentials: bool = False, insider: bool = False
+) -> tuple[dict, list]:
     run = swarm_run.start(scenario, out)
     sent = None
     try:
@@ -59,6 +80,8 @@ def _run(scenario: Path, out: Path, forge: list[str] | None, credentials: bool =
             command += ["--at-tick", str(AT_TICK), "--ahead", str(AHEAD), *forge]
             if credentials:
                 command += ["--credentials", str(out / "credentials" / "robot-0.cred"), "--blind"]
+            if insider:
+                command += ["--run-key", _run_key_of_the_server(out)]
             forger = subprocess.run(
                 [*command, "--out", str(sent_path)], capture_output=True, text=True, timeout=240
             )
@@ -116,6 +139,27 @@ def test_forward_dated_samples_change_nothing_with_and_without_access_control(tm
     assert [records[i]["messages"]["unauthenticated"] for i in range(COUNT)] == [0, 1, 0, 0, 0, 1]
     assert records[0]["poses"]["unauthenticated"] == 0  # the router refused the forged pose
     assert stats["unauthenticated_commands"] == 1 and stats["ticks_missed"] == 0
+
+
+def test_forward_dated_samples_signed_with_the_run_key_are_refused_by_their_tick(tmp_path):
+    """An insider (the run key read from a process's environment on a robot's host) signs its
+    forward-dated samples: they pass authentication, and the tick window (swarm/runtime/ticks.py) and
+    the server's command check are what refuse them; nothing changes."""
+    _, clean = _run(_scenario(tmp_path, acl=False), tmp_path / "clean", None)
+    out = tmp_path / "insider"
+    result, forged = _run(
+        _scenario(tmp_path, acl=False), out, ["--pose", "5", "--msg", "2", "--cmd", "3"], insider=True
+    )
+    assert sorted(result["sent"]) == ["cmd", "msg", "pose"], result["sent"]
+    _same_trajectory(clean, forged)
+    records = _records(out)
+    stats = json.loads((out / "server_stats.json").read_text())
+    assert records[5]["poses"]["unauthenticated"] == 0 and records[5]["poses"]["future"] == 1
+    assert [records[i]["messages"]["future"] for i in range(COUNT)] == [0, 1, 0, 1, 0, 0]
+    assert stats["future_commands"] == 1 and stats["unauthenticated_commands"] == 0
+    rejected = result["metrics"]["runtime"]["rejected"]
+    assert rejected["future"] == {"poses": 1, "messages": 2, "commands": 1}
+    assert rejected["unauthenticated"] == {"poses": 0, "messages": 0, "commands": 0}
 
 
 def test_a_forward_dated_pose_does_not_freeze_the_centralized_controller(tmp_path):
