@@ -78,7 +78,7 @@ from swarm.core.faults import DROPPED, HEARD, LOST, LinkFaults, message_max_age_
 from swarm.core.robot import RobotParams
 from swarm.runtime import wire
 from swarm.runtime.ticks import ACCEPT, OLD, PoseWindow, step_s_of
-from swarm.sim.controller_kinds import robot_controller
+from swarm.sim.controller_kinds import robot_controller, task_section
 from swarm.sim.onboard import wheels_one
 
 SERVER_LOST_S = 5.0
@@ -653,6 +653,8 @@ class RobotAgent:
                 config.robot_count,
                 config.control_period_s,
                 config.scenario.get("controller"),
+                task_section(config.scenario.get("task")),
+                self.robot,
             )
         except ValueError as error:  # swarm.sim.policy.PolicyFormatError is a ValueError
             record["exit_reason"] = f"bad controller: {error}"

@@ -221,7 +221,7 @@ def test_the_per_robot_baseline_computes_what_the_batched_one_computes(graph):
 def test_swarm_run_and_report_of_a_formation_scenario(tmp_path):
     """``swarm run --engine kinematic`` of a committed scenario: exit 0, the task's metrics and
     pictures; ``swarm report`` re-creates the same metrics from the trajectory; an unreachable
-    formation (40 s too short) exits 1; the pybullet engine refuses the task (exit 2)."""
+    formation (40 s too short) exits 1."""
     import json
 
     from swarm.cli import main
@@ -239,4 +239,32 @@ def test_swarm_run_and_report_of_a_formation_scenario(tmp_path):
     assert {key: again[key] for key in metrics} == metrics
     short = tmp_path / "short"
     assert main(["run", str(scenario), "--out", str(short), "--quiet", "--duration", "2"]) == 1
-    assert main(["run", str(scenario), "--out", str(tmp_path / "pb"), "--quiet", "--engine", "pybullet"]) == 2
+
+
+@pytest.mark.runtime
+def test_the_pybullet_runtime_forms_the_circle_with_one_agent_per_robot(tmp_path):
+    """capt_flood on PyBullet: 12 agent processes, each hearing its two cycle neighbours, fill the 12
+    slots of the circle. Judged from the sim server's trajectory against slots computed here (radius
+    1 m, slot k at angle 2 pi k / 12): every slot holds exactly one axle within the tolerance."""
+    import json
+    import math
+
+    from swarm.cli import main
+
+    scenario = Path(__file__).resolve().parents[1] / "scenarios" / "formation" / "cycle-capt_flood.yaml"
+    out = tmp_path / "pb"
+    code = main(["run", str(scenario), "--out", str(out), "--quiet", "--engine", "pybullet"])
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert code == 0, metrics.get("health")
+    assert metrics["engine"] == "pybullet" and metrics["task"] == "formation" and metrics["conflicts"] == 0
+    final = json.loads((out / "trajectory.jsonl").read_text().splitlines()[-1])["poses"]
+    slots = [(math.cos(2 * math.pi * k / 12), math.sin(2 * math.pi * k / 12)) for k in range(12)]
+    nearest = [min(range(12), key=lambda k: math.dist(pose[:2], slots[k])) for pose in final]
+    assert sorted(nearest) == list(range(12))  # one robot per slot
+    assert max(math.dist(pose[:2], slots[k]) for pose, k in zip(final, nearest, strict=True)) <= 0.1
+    assert metrics["ratio_to_lower_bound"] >= 1.0
+    for i in range(12):
+        record = json.loads((out / "logs" / f"agent_{i}.json").read_text())
+        assert record["controller"] == "capt_flood"
+        assert record["neighbours"] == sorted({(i - 1) % 12, (i + 1) % 12})
+        assert record["heavy_modules"] == []

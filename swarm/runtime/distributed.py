@@ -38,15 +38,15 @@ from swarm.runtime import health, wire
 from swarm.runtime.acl import write_credentials
 from swarm.runtime.procs import Supervisor, free_tcp_port
 from swarm.scenarios.fault_results import add_fault_results, read_events
-from swarm.scenarios.report import write_pictures
 from swarm.scenarios.results import (
     prepare_results_dir,
     read_trajectory,
-    summarize,
+    task_outcome,
     write_metrics,
     write_partial_results,
 )
 from swarm.scenarios.scenario import Scenario, ScenarioError, parse_scenario, resolve_model_path
+from swarm.scenarios.task_report import task_pictures
 
 log = logging.getLogger(__name__)
 
@@ -467,7 +467,7 @@ def _run_distributed(
         write_partial_results(out_dir, f"the trajectory has {len(times_s)} of {steps + 1} ticks")
         raise RunFailed(f"trajectory has {len(times_s)} of {steps + 1} ticks (logs in {logs})")
 
-    outcome = summarize(scenario, times_s, poses, adjacency)
+    outcome = task_outcome(scenario, times_s, poses, adjacency)  # rendezvous: summarize
     if incomplete is not None:
         outcome.update(incomplete=incomplete, ticks_planned=steps)
     records = {int(path.stem.split("_")[1]): _read_json(path) for path in sorted(logs.glob("agent_*.json"))}
@@ -502,7 +502,7 @@ def _run_distributed(
         ),
     )
     write_metrics(out_dir, outcome)
-    write_pictures(out_dir, scenario, times_s, poses, outcome)
+    task_pictures(out_dir, scenario, times_s, poses, outcome)  # rendezvous: write_pictures
     return outcome
 
 

@@ -136,10 +136,19 @@ def run_scenario(
     )
     if scenario.sim.engine == "kinematic":
         return run_kinematic(scenario, out_dir, scenario_path, progress)
-    if scenario.sim.engine == "pybullet" and scenario.task.kind != "rendezvous":
+    if scenario.sim.engine == "pybullet" and scenario.task.kind not in ("rendezvous", "formation"):
         raise ScenarioError(
             f"task: {scenario.task.kind} runs on the kinematic engine only in this version"
             " (--engine kinematic)"
+        )
+    if (
+        scenario.sim.engine == "pybullet"
+        and scenario.task.kind != "rendezvous"
+        and scenario.controller.kind == "capt"
+    ):
+        raise ScenarioError(
+            "controller: capt (the central formation expert) runs on the kinematic engine only in this"
+            " version; capt_flood runs on the robots' agents (docs/tasks.md)"
         )
     if scenario.sim.engine == "pybullet" and (scenario.safety is not None or scenario.obstacles):
         key = "safety" if scenario.safety is not None else "obstacles"

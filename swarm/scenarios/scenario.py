@@ -684,7 +684,7 @@ def threshold_warnings(scenario: Scenario) -> list[str]:
     from swarm.core import metrics
 
     warnings = []
-    if scenario.success.metric == "max_pairwise":
+    if scenario.task.kind == "rendezvous" and scenario.success.metric == "max_pairwise":  # its success
         count, radius_m = scenario.robots.count, scenario.robot.body_radius_m
         smallest_m = metrics.min_gathered_max_pairwise_m(count, radius_m)
         threshold_m = scenario.success.threshold_for("pybullet")

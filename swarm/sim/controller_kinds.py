@@ -28,6 +28,7 @@ class ControllerArgs:
     robot_count: int = 0
     policy: Any = None  # gnn: a policy file path (batched) or its bytes (onboard)
     task: Any = None  # the scenario's task section (swarm.core.tasks)
+    robot_id: int = 0  # onboard: the robot it runs on (what a task's per-robot form needs)
 
     @classmethod
     def from_spec(cls, spec: Mapping[str, Any], robot: RobotParams, control_period_s: float, **more):
@@ -98,6 +99,14 @@ def _capt_flood(args: ControllerArgs):
     return CaptFlood(args.robot, args.control_period_s, _formation(args), args.robot_count, args.reverse)
 
 
+def _onboard_capt_flood(args: ControllerArgs):
+    from swarm.sim.formation_onboard import OnboardCaptFlood
+
+    return OnboardCaptFlood(
+        args.robot, args.control_period_s, _formation(args), args.robot_count, args.robot_id, args.reverse
+    )
+
+
 def _formation(args: ControllerArgs):
     if getattr(args.task, "kind", None) != "formation":
         raise ValueError("this controller does the formation task: it needs task: {kind: formation, ...}")
@@ -165,7 +174,7 @@ CONTROLLER_KINDS: dict[str, ControllerKind] = {
             "capt_flood",
             "formation: flood the start positions, CAPT assignment of those known, full speed to the slot",
             _capt_flood,
-            None,
+            _onboard_capt_flood,
             ("reverse",),
             task="formation",
         ),
@@ -202,14 +211,38 @@ def robot_controller(
     robot_count: int = 0,
     control_period_s: float = 0.05,
     options: Mapping[str, Any] | None = None,
+    task: Any = None,
+    robot_id: int = 0,
 ):
     """The onboard controller of one robot (what a robot agent runs). ``gnn`` loads the policy
     file's bytes with the scenario's robot parameters; ``options`` is the scenario's ``controller``
-    section (``mec_flood``: directions, reverse). Central kinds (``centralized``,
-    ``centralized_mec``) are not onboard controllers: they run as one central process
+    section (``mec_flood``: directions, reverse); ``task``: the scenario's task section (a task's
+    controllers read it: ``capt_flood``) and ``robot_id`` the robot it runs on. Central kinds
+    (``centralized``, ``centralized_mec``) are not onboard controllers: they run as one central process
     (``python -m robot_agent.central``); ValueError for them and for unknown kinds."""
     spec = {**(options or {}), "gain": gain}
     args = ControllerArgs.from_spec(
-        spec, robot, control_period_s, robot_count=robot_count, policy=policy_bytes
+        spec,
+        robot,
+        control_period_s,
+        robot_count=robot_count,
+        policy=policy_bytes,
+        task=task,
+        robot_id=robot_id,
     )
     return onboard_controller(kind, args)
+
+
+def task_section(section: Mapping[str, Any] | None) -> Any:
+    """The typed task section (``swarm.core.tasks``) of a scenario's ``task`` mapping as the agent's
+    configuration carries it (None: the default, rendezvous); ValueError when it does not validate."""
+    from pydantic import ValidationError
+
+    from swarm.core import tasks
+
+    data = dict(section or {"kind": "rendezvous"})
+    task = tasks.get(str(data.get("kind", "rendezvous")))
+    try:
+        return task.section.model_validate(data)
+    except ValidationError as error:
+        raise ValueError(f"task section of the config: {error}") from None

@@ -3,9 +3,9 @@
 The same rule as :class:`swarm.sim.formation_controllers.CaptFlood` for one robot ``robot_id``: its
 memory is what it knows of every robot's initial axle position (``N x (known, x, y)``, its message);
 each tick it unites the heard messages into it, recomputes the CAPT assignment of the robots it knows
-to all slots when that set grew, and drives at full speed toward its own slot. Not yet wired into the
-robot agents (docs/tasks.md, "Not done"); ``tests/test_formation.py`` checks that it computes what the
-batched form computes.
+to all slots when that set grew, and drives at full speed toward its own slot. The robot agents run it
+(``controller_kinds``' onboard form of ``capt_flood``); ``tests/test_formation.py`` checks that it
+computes what the batched form computes.
 """
 
 from __future__ import annotations
@@ -40,6 +40,9 @@ class OnboardCaptFlood:
         self._memory: np.ndarray | None = None  # (N, 3)
         self._known = np.zeros(self.count, dtype=bool)  # what the target was computed from
         self._target = np.zeros(2)
+        # capt_assignment's scipy, imported now (before the agent is ready) and not in its first tick:
+        # 12 agents importing it at once on 2 cores took 6-11 s there, and the sim moved on without them
+        import scipy.optimize  # noqa: F401
 
     def act_one(
         self, pose: np.ndarray, neighbour_messages: np.ndarray, weights: np.ndarray | None = None
