@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from swarm.core import graphs, metrics
+from swarm.core import graphs, metrics, tasks
 from swarm.core.faults import LinkFaults, message_max_age_ticks, tick_of
 from swarm.scenarios.scenario import Scenario
 
@@ -209,6 +209,9 @@ def apply_fault_summary(
         key: outcome.get(key) for key in ("converged", "convergence_time_s", "final_metric", "components")
     }
     outcome["faults"] = summary
+    if tasks.get(scenario.task.kind).outcome is not None:  # a task with its own success rule (formation)
+        summary["components"] = outcome.get("components")  # judged every robot already: a dead robot's
+        return outcome  # slot stays empty unless it died on it, which the rule sees (not consensus)
     live, components = summary["live_robots"], summary["components"]
     outcome["components"] = components
     outcome["graph_connected"] = summary["live_graph_connected"]
