@@ -73,12 +73,13 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from swarm.core import tasks
 from swarm.core.exit_codes import ExitCode
 from swarm.core.faults import DROPPED, HEARD, LOST, LinkFaults, message_max_age_ticks, select_message
 from swarm.core.robot import RobotParams
 from swarm.runtime import wire
 from swarm.runtime.ticks import ACCEPT, OLD, PoseWindow, step_s_of
-from swarm.sim.controller_kinds import robot_controller, task_section
+from swarm.sim.controller_kinds import robot_controller
 from swarm.sim.onboard import wheels_one
 
 SERVER_LOST_S = 5.0
@@ -653,7 +654,7 @@ class RobotAgent:
                 config.robot_count,
                 config.control_period_s,
                 config.scenario.get("controller"),
-                task_section(config.scenario.get("task")),
+                tasks.parse_section(config.scenario.get("task")),
                 self.robot,
             )
         except ValueError as error:  # swarm.sim.policy.PolicyFormatError is a ValueError

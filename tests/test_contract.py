@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from swarm.core import graphs, topologies
+from swarm.core import graphs, tasks, topologies
 from swarm.core.experts import centralized_mec_velocity, complete_consensus_velocity
 from swarm.core.faults import FAULT_KINDS, LINK_FAULTS, PROCESS_FAULTS, LinkFaults, select_message
 from swarm.core.faults import message_max_age_ticks as max_age_of
@@ -42,7 +42,6 @@ from swarm.sim.controller_kinds import (
     ControllerArgs,
     batched_controller,
     onboard_controller,
-    task_section,
 )
 from swarm.sim.kinematic import KinematicSim
 from swarm.sim.policy import load_policy
@@ -100,8 +99,8 @@ def _variants() -> list[tuple[str, Path | None]]:
 
 VARIANTS = _variants()
 TASK_SECTIONS = {  # what a task's kinds are run on: one section per task
-    "rendezvous": task_section(None),
-    "formation": task_section(  # a circle where the far starts are: the disk graph changes on the way
+    "rendezvous": tasks.parse_section(None),
+    "formation": tasks.parse_section(  # a circle where the far starts are: the disk graph changes on the way
         {"kind": "formation", "slots": {"circle": {"radius_m": 1.0, "centre": FAR_M.tolist()}}}
     ),
 }

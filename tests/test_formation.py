@@ -241,11 +241,19 @@ def test_swarm_run_and_report_of_a_formation_scenario(tmp_path):
     assert main(["run", str(scenario), "--out", str(short), "--quiet", "--duration", "2"]) == 1
 
 
+def _circle_of_twelve() -> list[tuple[float, float]]:
+    """The slots of scenarios/formation/cycle-capt_flood.yaml, written out here: radius 1 m, slot k at
+    angle 2 pi k / 12."""
+    import math
+
+    return [(math.cos(2 * math.pi * k / 12), math.sin(2 * math.pi * k / 12)) for k in range(12)]
+
+
 @pytest.mark.runtime
 def test_the_pybullet_runtime_forms_the_circle_with_one_agent_per_robot(tmp_path):
     """capt_flood on PyBullet: 12 agent processes, each hearing its two cycle neighbours, fill the 12
-    slots of the circle. Judged from the sim server's trajectory against slots computed here (radius
-    1 m, slot k at angle 2 pi k / 12): every slot holds exactly one axle within the tolerance."""
+    slots of the circle. Judged from the sim server's trajectory against slots computed here
+    (:func:`_circle_of_twelve`): every slot holds exactly one axle within the tolerance."""
     import json
     import math
 
@@ -258,7 +266,7 @@ def test_the_pybullet_runtime_forms_the_circle_with_one_agent_per_robot(tmp_path
     assert code == 0, metrics.get("health")
     assert metrics["engine"] == "pybullet" and metrics["task"] == "formation" and metrics["conflicts"] == 0
     final = json.loads((out / "trajectory.jsonl").read_text().splitlines()[-1])["poses"]
-    slots = [(math.cos(2 * math.pi * k / 12), math.sin(2 * math.pi * k / 12)) for k in range(12)]
+    slots = _circle_of_twelve()
     nearest = [min(range(12), key=lambda k: math.dist(pose[:2], slots[k])) for pose in final]
     assert sorted(nearest) == list(range(12))  # one robot per slot
     assert max(math.dist(pose[:2], slots[k]) for pose, k in zip(final, nearest, strict=True)) <= 0.1
@@ -285,7 +293,7 @@ def test_the_pybullet_formation_is_judged_by_its_slots_under_faults(tmp_path):
     scenario = Path(__file__).resolve().parents[1] / "scenarios" / "formation" / "cycle-capt_flood.yaml"
     data = yaml.safe_load(scenario.read_text())
     data["sim"]["engine"] = "pybullet"
-    slots = [(math.cos(2 * math.pi * k / 12), math.sin(2 * math.pi * k / 12)) for k in range(12)]
+    slots = _circle_of_twelve()
     for name, faults, expected in (
         ("lossy", [{"kind": "packet_loss", "p": 0.2}, {"at": 1.0, "kind": "drop_link", "link": [0, 1]}], 0),
         ("killed", [{"at": 0.5, "kind": "kill_agent", "robot": 3}], 1),

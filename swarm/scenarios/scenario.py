@@ -402,6 +402,7 @@ class Scenario(_Strict):
                     f"{self.task.tolerance_m:g} m is not under half the smallest slot spacing"
                     f" {spacing:.3g} m",
                 )
+
     obstacles: list[ObstacleSpec] = Field(default_factory=list, description="static discs and walls")
     safety: SafetyParams | None = Field(None, description="the barrier filter (docs/safety.md); off: None")
 

@@ -231,18 +231,3 @@ def robot_controller(
         robot_id=robot_id,
     )
     return onboard_controller(kind, args)
-
-
-def task_section(section: Mapping[str, Any] | None) -> Any:
-    """The typed task section (``swarm.core.tasks``) of a scenario's ``task`` mapping as the agent's
-    configuration carries it (None: the default, rendezvous); ValueError when it does not validate."""
-    from pydantic import ValidationError
-
-    from swarm.core import tasks
-
-    data = dict(section or {"kind": "rendezvous"})
-    task = tasks.get(str(data.get("kind", "rendezvous")))
-    try:
-        return task.section.model_validate(data)
-    except ValidationError as error:
-        raise ValueError(f"task section of the config: {error}") from None

@@ -7,6 +7,6 @@ from swarm.core.tasks import rendezvous  # noqa: F401  (registers it first: the 
 
 # isort: split
 from swarm.core.tasks import formation  # noqa: F401
-from swarm.core.tasks.registry import Task, default_section, get, names, register, sections
+from swarm.core.tasks.registry import Task, default_section, get, names, parse_section, register, sections
 
-__all__ = ["Task", "default_section", "get", "names", "register", "sections"]
+__all__ = ["Task", "default_section", "get", "names", "parse_section", "register", "sections"]

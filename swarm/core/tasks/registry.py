@@ -12,7 +12,7 @@ registry; nothing else lists tasks.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -89,3 +89,16 @@ def sections() -> tuple[type[BaseModel], ...]:
 def default_section(name: str = "rendezvous") -> Any:
     """The section of ``name`` with every default (what a scenario without ``task`` runs)."""
     return get(name).section()
+
+
+def parse_section(section: Mapping[str, Any] | None) -> Any:
+    """The typed section of a scenario's ``task`` mapping (a plain mapping, as an agent's configuration
+    carries it; None: the default, rendezvous); ValueError when it does not validate."""
+    from pydantic import ValidationError
+
+    data = dict(section or {"kind": "rendezvous"})
+    task = get(str(data.get("kind", "rendezvous")))
+    try:
+        return task.section.model_validate(data)
+    except ValidationError as error:
+        raise ValueError(f"task section of the config: {error}") from None
