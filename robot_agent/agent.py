@@ -73,7 +73,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from swarm.core import tasks
+from swarm.core import safety, tasks
 from swarm.core.exit_codes import ExitCode
 from swarm.core.faults import DROPPED, HEARD, LOST, LinkFaults, message_max_age_ticks, select_message
 from swarm.core.robot import RobotParams
@@ -107,6 +107,9 @@ MESSAGE_RING = 8192
 drained every tick and while waiting, sized for floods as ``POSE_RING``."""
 
 LIVELINESS_RING = 16
+
+SENSE_RING = 64
+"""Sensing samples buffered (one a tick from the sim; drained every tick)."""
 
 HUNG_AFTER_DEADLINES = 3
 """lockstep: a live neighbour (its token up) whose message missed this many neighbour deadlines in a
@@ -193,6 +196,64 @@ class CommandSink:
         self.publisher.undeclare()
 
 
+class SenseReader:
+    """The robot's own range-sensor readings (``swarm/<run>/robot/<i>/sense``, scenarios with
+    ``safety``) and its safety filter (``swarm.core.safety.filter_reading``) on the controller's command.
+
+    The reading of tick k goes out just before pose k, so it is normally in when the pose is; lockstep
+    waits for it up to the neighbour deadline. A tick without its reading (lost, late, forged) brakes
+    the robot (``missing``): driving blind is not safe. Counts (the record's ``safety_filter``): readings
+    ``received``, ``invalid``, ``unauthenticated``, ``missing``, and the filter's ``interventions``
+    (commands changed) and ``infeasible`` (no safe command: braked)."""
+
+    def __init__(self, inlet: Inlet, key: str, params: safety.SafetyParams, robot: RobotParams):
+        self.inlet, self.key, self.params, self.robot = inlet, key, params, robot
+        self.readings: dict[int, wire.Sensing] = {}
+        self.counts = dict.fromkeys(
+            ("received", "invalid", "unauthenticated", "missing", "interventions", "infeasible"), 0
+        )
+
+    def drain(self, tick: int, run_key: wire.RunKey | None) -> bool:
+        """Take what is queued; whether the reading of ``tick`` is in."""
+        counts, readings = self.counts, self.readings
+        while (taken := self.inlet.take()) is not None:
+            payload, tag = taken
+            if run_key is not None and not run_key.check(self.key, payload, tag):
+                counts["unauthenticated"] += 1
+                continue
+            reading = wire.decode_sensing(payload)
+            if reading is None:
+                counts["invalid"] += 1
+                continue
+            counts["received"] += 1
+            if reading.tick >= tick:  # an older one can no longer be used
+                readings[reading.tick] = reading
+        for old in [k for k in readings if k < tick]:
+            del readings[old]
+        return tick in readings
+
+    def filtered(self, tick: int, u_world, theta_rad: float) -> tuple[Any, bool]:
+        """The safe command of this tick, and whether the robot must brake (no reading, infeasible)."""
+        reading = self.readings.get(tick)
+        if reading is None:
+            self.counts["missing"] += 1
+            return (0.0, 0.0), True
+        safe, status = safety.filter_reading(
+            np.asarray(u_world, dtype=np.float64),
+            theta_rad,
+            reading.bodies,
+            reading.obstacles,
+            self.robot,
+            self.params,
+        )
+        if status == safety.CHANGED:
+            self.counts["interventions"] += 1
+        elif status == safety.INFEASIBLE:
+            self.counts["infeasible"] += 1
+            return (0.0, 0.0), True
+        return (float(safe[0]), float(safe[1])), False
+
+
 @dataclass
 class AgentOptions:
     robot: int
@@ -263,6 +324,7 @@ class RobotAgent:
         self._inbox: dict[int, dict[int, Sequence[float]]] = {}  # neighbour -> tick -> message
         self._msg_inlets: dict[int, Inlet] = {}
         self._pose_inlet: Inlet | None = None
+        self._sense: SenseReader | None = None  # scenarios with a safety filter
         self._pose_key = ""
         self._msg_keys: dict[int, str] = {}
         self._window = PoseWindow(1.0)
@@ -484,6 +546,14 @@ class RobotAgent:
                     break
         return missing
 
+    def _wait_for_reading(self, tick: int, until_s: float) -> None:
+        """lockstep: poll until this tick's sensor reading is in, or the deadline."""
+        assert self._sense is not None
+        while not self._ended() and time.perf_counter() < until_s:
+            time.sleep(POLL_S)
+            if self._sense.drain(tick, self._run_key):
+                return
+
     def _wait_for_messages(self, tick: int, until_s: float) -> None:
         """lockstep: poll until every live neighbour's needed message is in, or the deadline."""
         while True:
@@ -685,6 +755,13 @@ class RobotAgent:
         self._msg_keys = {j: keys.msg(j) for j in config.neighbours}
         entities.append(pose_inlet)  # undeclared last: it counts what is unread first
         record["subscriptions"].append(self._pose_key)
+        if config.scenario.get("safety") is not None:
+            sense_inlet = Inlet(session, keys.sense(self.robot), SENSE_RING)
+            self._sense = SenseReader(
+                sense_inlet, keys.sense(self.robot), safety.SafetyParams(**config.scenario["safety"]), params
+            )
+            entities.append(sense_inlet)
+            record["subscriptions"].append(keys.sense(self.robot))
         for j in config.neighbours:
             self._inbox[j] = {}
             self._msg_inlets[j] = inlet = Inlet(session, keys.msg(j), MESSAGE_RING)
@@ -742,6 +819,9 @@ class RobotAgent:
                 self._first_tick = self.record["first_tick"] = tick
             self._drain_liveliness()
             self._drain_messages()
+            sense = self._sense
+            if sense is not None and not sense.drain(tick, run_key) and lockstep:
+                self._wait_for_reading(tick, time.perf_counter() + config.neighbour_deadline_s)
             if lockstep and self._waiting_for(tick):
                 wait_start_s = time.perf_counter()
                 self._wait_for_messages(tick, wait_start_s + config.neighbour_deadline_s)
@@ -781,7 +861,11 @@ class RobotAgent:
             else:
                 inbox = np.array(messages, dtype=np.float64).reshape(len(heard), dim)
                 u_world, message = controller.act_one(pose.array(), inbox, np.array(weights))
-            wheels = wheels_one(u_world, pose.theta_rad, params)
+            if sense is None:
+                wheels = wheels_one(u_world, pose.theta_rad, params)
+            else:
+                u_safe, brake = sense.filtered(tick, u_world, pose.theta_rad)
+                wheels = (0.0, 0.0) if brake else wheels_one(u_safe, pose.theta_rad, params)
             message_payload = wire.encode_message(tick, message)
             if run_key is None:
                 msg_pub.put(message_payload)
@@ -831,6 +915,7 @@ class RobotAgent:
                 "lost_by_fault": counters.messages_lost_by_fault,
                 "delayed_by_fault": counters.messages_delayed_by_fault,
             },
+            safety_filter=None if self._sense is None else dict(self._sense.counts),
             ticks_waited=counters.ticks_waited,
             neighbour_wait_ms=_stats_ms(counters.neighbour_wait_s),
             compute_ms=_stats_ms(counters.compute_s),

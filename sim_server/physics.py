@@ -35,9 +35,14 @@ GRAVITY_MPS2 = 9.81
 GROUP_GROUND = 1
 GROUP_WHEEL = 2
 GROUP_BODY = 4
+GROUP_OBSTACLE = 8
 _MASK_GROUND = GROUP_WHEEL | GROUP_BODY
 _MASK_WHEEL = GROUP_GROUND
-_MASK_BODY = GROUP_GROUND | GROUP_BODY
+_MASK_BODY = GROUP_GROUND | GROUP_BODY | GROUP_OBSTACLE
+_MASK_OBSTACLE = GROUP_BODY
+
+OBSTACLE_HEIGHT_M = 0.3
+"""Height of the static obstacles (discs and walls stand on the ground; taller than any bumper)."""
 
 WHEEL_TRACTION_LIMIT_N = 2.0
 """Default wheel motor limit, as the force at the tyre: torque limit = this x wheel radius.
@@ -106,6 +111,11 @@ class PhysicsWorld:
             ``force``); ``None``: :data:`WHEEL_TRACTION_LIMIT_N` x wheel radius (0.08 N m for
             the default robot). Above ~0.11 N m (default robot) the wheels slip on a step
             command and the robot gets a spurious heading kick.
+        obstacles: static capsules ``(start, end, radius)`` (``swarm.core.obstacles``): a vertical
+            cylinder for a disc, a box with a cylinder at each end for a wall, ``OBSTACLE_HEIGHT_M``
+            tall, touched by the robots' bodies (not their wheels).
+        count_contacts: after every physics substep, read PyBullet's contact points and keep the
+            robot-robot and robot-obstacle pairs touching (:meth:`take_contacts`).
 
     Use as a context manager, or call :meth:`close`.
 
@@ -123,6 +133,8 @@ class PhysicsWorld:
         physics_hz: float = 240.0,
         solver_iterations: int = 10,
         wheel_force_limit_nm: float | None = None,
+        obstacles: tuple[tuple[tuple[float, float], tuple[float, float], float], ...] = (),
+        count_contacts: bool = False,
     ) -> None:
         poses = np.asarray(initial_poses, dtype=np.float64)
         if poses.ndim != 2 or poses.shape[1] != 3:
@@ -159,6 +171,13 @@ class PhysicsWorld:
             )
             self._plane = self._make_ground(cid)
             self._bodies = self._load_robots(robot, poses, cid)
+            self._robot_of_body = {body: i for i, body in enumerate(self._bodies)}
+            self._obstacle_of_body: dict[int, int] = {}
+            for index, capsule in enumerate(obstacles):
+                for body in self._make_obstacle(capsule, cid):
+                    self._obstacle_of_body[body] = index
+            self.count_contacts = bool(count_contacts)
+            self._touching: set[tuple[str, int, int]] = set()  # since the last take_contacts
             self._joints = [0, 1]  # left, right: the URDF's joint order
             self._forces = [self.wheel_force_limit_nm, self.wheel_force_limit_nm]
             # Body-frame offset of the base link's centre of mass (getBasePositionAndOrientation
@@ -186,6 +205,32 @@ class PhysicsWorld:
         pb.changeDynamics(plane, -1, lateralFriction=1.0, physicsClientId=cid)
         pb.setCollisionFilterGroupMask(plane, -1, GROUP_GROUND, _MASK_GROUND, physicsClientId=cid)
         return plane
+
+    @staticmethod
+    def _make_obstacle(capsule, cid: int) -> list[int]:
+        """The static bodies of one capsule: a cylinder at each end (one for a disc) and, for a wall, a
+        box between them, all standing on the ground."""
+        (x0, y0), (x1, y1), radius = capsule
+        half_height = 0.5 * OBSTACLE_HEIGHT_M
+        length = math.hypot(x1 - x0, y1 - y0)
+        ends = [(x0, y0)] if length == 0 else [(x0, y0), (x1, y1)]
+        bodies = []
+        for x, y in ends:
+            shape = pb.createCollisionShape(
+                pb.GEOM_CYLINDER, radius=radius, height=OBSTACLE_HEIGHT_M, physicsClientId=cid
+            )
+            bodies.append(pb.createMultiBody(0.0, shape, -1, [x, y, half_height], physicsClientId=cid))
+        if length > 0:
+            yaw = math.atan2(y1 - y0, x1 - x0)
+            shape = pb.createCollisionShape(
+                pb.GEOM_BOX, halfExtents=[0.5 * length, radius, half_height], physicsClientId=cid
+            )
+            centre = [0.5 * (x0 + x1), 0.5 * (y0 + y1), half_height]
+            turn = [0.0, 0.0, math.sin(0.5 * yaw), math.cos(0.5 * yaw)]
+            bodies.append(pb.createMultiBody(0.0, shape, -1, centre, turn, physicsClientId=cid))
+        for body in bodies:
+            pb.setCollisionFilterGroupMask(body, -1, GROUP_OBSTACLE, _MASK_OBSTACLE, physicsClientId=cid)
+        return bodies
 
     @staticmethod
     def _load_robots(robot: RobotParams, poses: np.ndarray, cid: int) -> list[int]:
@@ -288,8 +333,34 @@ class PhysicsWorld:
         step = pb.stepSimulation
         for _ in range(n):
             step(physicsClientId=cid)
+            if self.count_contacts:
+                self._note_contacts()
         self._steps += n
         return n / self.physics_hz
+
+    def _note_contacts(self) -> None:
+        """Add the robot-robot and robot-obstacle pairs touching now (a contact point at distance <= 0:
+        Bullet's manifolds also keep points a little apart, which are no contact)."""
+        robot_of, obstacle_of, touching = self._robot_of_body, self._obstacle_of_body, self._touching
+        for point in pb.getContactPoints(physicsClientId=self._cid):
+            if point[8] > 0.0:
+                continue
+            a, b = point[1], point[2]
+            if a in robot_of and b in robot_of:
+                i, j = sorted((robot_of[a], robot_of[b]))
+                touching.add(("robot_robot", i, j))
+            elif a in robot_of and b in obstacle_of:
+                touching.add(("robot_obstacle", robot_of[a], obstacle_of[b]))
+            elif b in robot_of and a in obstacle_of:
+                touching.add(("robot_obstacle", robot_of[b], obstacle_of[a]))
+
+    def take_contacts(self) -> tuple[set[tuple[int, int]], set[tuple[int, int]]]:
+        """The pairs that touched at any substep since the last call (``count_contacts``): robot pairs
+        ``(i, j)`` with ``i < j``, and ``(robot, obstacle)`` pairs; then forgets them."""
+        touching, self._touching = self._touching, set()
+        robots = {(i, j) for kind, i, j in touching if kind == "robot_robot"}
+        walls = {(i, j) for kind, i, j in touching if kind == "robot_obstacle"}
+        return robots, walls
 
     def _read_base_states(self) -> np.ndarray:
         """(N, 7) centre-of-mass position and orientation (x, y, z, qx, qy, qz, qw) per robot."""

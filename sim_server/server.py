@@ -55,11 +55,13 @@ import zenoh
 from sim_server.physics import PhysicsWorld
 from swarm.core.exit_codes import ExitCode
 from swarm.core.faults import tick_of
-from swarm.core.robot import saturate_wheels
+from swarm.core.obstacles import Capsules
+from swarm.core.robot import controlled_point, saturate_wheels
 from swarm.runtime import wire
 from swarm.runtime.agent_config import agent_configs
 from swarm.scenarios.results import TrajectoryWriter, prepare_results_dir
 from swarm.scenarios.scenario import Scenario
+from swarm.sim.sensing import robot_reading, sense
 
 log = logging.getLogger(__name__)
 
@@ -162,6 +164,12 @@ class SimServer:
             None if key is None else [key.tag(self.keys.config(i), c) for i, c in enumerate(self._configs)]
         )
         self._pose_keys = [self.keys.pose(i) for i in range(self.count)]
+        self._sense_keys = [self.keys.sense(i) for i in range(self.count)]
+        self._obstacles = Capsules(scenario.obstacles)
+        safety = scenario.safety
+        self._sense_rng = None if safety is None else np.random.default_rng(safety.seed)
+        self._contacts = {"robot_robot": 0, "robot_obstacle": 0, "ticks": 0}
+        self._sense_publishers: list = []
         self._hung: set[int] = set()  # lockstep: live agents not waited for (HUNG_AFTER_DEADLINES)
         self._missed_in_row = np.zeros(self.count, dtype=int)
         self._robot_of_cmd = {self.keys.cmd(i): i for i in range(self.count)}
@@ -205,6 +213,7 @@ class SimServer:
             "config_queries": 0,
             "agent_events": [],
             "silent_spans": [],
+            "contacts": self._contacts,  # (pair, tick) touches in PyBullet, any substep (docs/safety.md)
         }
 
     # ------------------------------------------------------------------ callbacks (zenoh threads)
@@ -333,7 +342,14 @@ class SimServer:
         sim = scenario.sim
         prepare_results_dir(options.out_dir, scenario)
         started_s = self._started_s = time.perf_counter()
-        world = PhysicsWorld(scenario.robot, scenario.initial_poses(), sim.physics_hz, sim.solver_iterations)
+        world = PhysicsWorld(
+            scenario.robot,
+            scenario.initial_poses(),
+            sim.physics_hz,
+            sim.solver_iterations,
+            obstacles=tuple(spec.capsule() for spec in scenario.obstacles),
+            count_contacts=True,
+        )
         config = wire.session_config(
             options.zenoh_mode, options.connect, options.listen, options.lease_ms, options.zenoh_settings
         )
@@ -351,6 +367,10 @@ class SimServer:
                 publishers = [
                     session.declare_publisher(self.keys.pose(i), **stream) for i in range(self.count)
                 ]
+                if scenario.safety is not None:  # each robot's range sensor, on a key of its own
+                    self._sense_publishers = [
+                        session.declare_publisher(key, **stream) for key in self._sense_keys
+                    ]
                 if options.ros2:
                     from sim_server.ros2_face import Ros2Face
 
@@ -375,7 +395,7 @@ class SimServer:
                     self._log(f"all {self.count} agents alive after {self.stats['startup_s']:.2f} s")
                     loop = self._lockstep if sim.mode == "lockstep" else self._realtime
                     outcome = loop(world, publishers)
-                for entity in (alive_sub, cmd_sub, queryable, token, *publishers):
+                for entity in (alive_sub, cmd_sub, queryable, token, *publishers, *self._sense_publishers):
                     entity.undeclare()
                 if self.ros2_face is not None:
                     self.ros2_face.undeclare()
@@ -397,8 +417,10 @@ class SimServer:
             if self.scenario.sim.mode == "lockstep":
                 self._cmds.clear()
             self._published_at_s[tick] = time.perf_counter()
-        payloads = self._encoder.encode(tick, time_s, poses.tolist())
         run_key = self.options.run_key
+        if self._sense_publishers:  # before the poses: an agent has its reading when its pose comes
+            self._publish_sensing(tick, poses, run_key)
+        payloads = self._encoder.encode(tick, time_s, poses.tolist())
         if run_key is None:
             for publisher, payload in zip(publishers, payloads, strict=True):
                 publisher.put(payload)
@@ -408,6 +430,27 @@ class SimServer:
         if self.ros2_face is not None:
             self.ros2_face.publish(time_s, poses)
         self._add_time("publish", start_s, start_cpu_s)
+
+    def _publish_sensing(self, tick: int, poses: np.ndarray, run_key: wire.RunKey | None) -> None:
+        """Robot i's range-sensor reading of this tick on its own key (``swarm.sim.sensing`` from the
+        exact PyBullet poses, with the scenario's noise and dropout from a generator seeded once)."""
+        safety = self.scenario.safety
+        assert safety is not None
+        readings = sense(
+            poses[None],
+            controlled_point(poses[None], self.scenario.robot.offset_m),
+            self._obstacles,
+            safety.sensing_radius_m,
+            safety.noise_m,
+            safety.dropout,
+            self._sense_rng,
+        )
+        for i, (publisher, key) in enumerate(zip(self._sense_publishers, self._sense_keys, strict=True)):
+            payload = wire.encode_sensing(tick, *robot_reading(readings, i))
+            if run_key is None:
+                publisher.put(payload)
+            else:
+                publisher.put(payload, attachment=run_key.tag(key, payload))
 
     def _add_time(self, part: str, start_s: float, start_cpu_s: float) -> None:
         spent = self._timing[part]
@@ -433,6 +476,10 @@ class SimServer:
         self.applied_wheels = wheels
         start_s, start_cpu_s = time.perf_counter(), time.thread_time()
         world.step(self.dt_s)
+        robots, walls = world.take_contacts()
+        self._contacts["robot_robot"] += len(robots)
+        self._contacts["robot_obstacle"] += len(walls)
+        self._contacts["ticks"] += bool(robots or walls)
         return time.perf_counter() - start_s, time.thread_time() - start_cpu_s
 
     def _trajectory(self) -> TrajectoryWriter:

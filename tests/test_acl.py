@@ -64,7 +64,7 @@ def test_each_robot_is_allowed_its_own_keys_and_its_neighbours_only():
     assert all(rule["permission"] == "allow" and len(rule["flows"]) == 1 for rule in rules.values())
     policy = next(policy for policy in block["policies"] if policy["subjects"] == ["robot-1"])
     mine = [rules[name] for name in policy["rules"]]
-    heard = {keys.pose(1), keys.msg(0), keys.msg(2)}
+    heard = {keys.pose(1), keys.sense(1), keys.msg(0), keys.msg(2)}
     assert _keys_of(mine, "ingress", "declare_subscriber") == heard
     assert _keys_of(mine, "egress", "put") == heard
     assert _keys_of(mine, "ingress", "put") == {keys.cmd(1), keys.msg(1)}

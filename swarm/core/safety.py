@@ -42,7 +42,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from swarm.core.robot import RobotParams
+from swarm.core.robot import RobotParams, rotate, world_to_local
 
 UNCHANGED, CHANGED, INFEASIBLE = 0, 1, 2
 """What the filter did to a command: nothing, changed it, or found no feasible one and braked."""
@@ -198,6 +198,31 @@ def readings_to_points(
         x = x + offset_m * np.cos(headings_rad)
         y = y + offset_m * np.sin(headings_rad)
     return np.stack([x, y], axis=-1)
+
+
+def filter_reading(
+    u_world: np.ndarray,
+    theta_rad: float,
+    bodies: np.ndarray,
+    obstacles: np.ndarray,
+    robot: RobotParams,
+    safety: SafetyParams,
+) -> tuple[np.ndarray, int]:
+    """One robot's safe world command from its own reading, as a robot agent runs it: ``bodies (M, 3)``
+    (range, bearing, relative heading) and ``obstacles (K, 2)`` (range, bearing) as the sim sends them
+    (``swarm.runtime.wire.Sensing``). The same arithmetic as the kinematic engine's batched filter
+    (``swarm.sim.safety_filter``): the controller's command turned into the robot frame, filtered
+    (:func:`filter_command`) and turned back; returned as it came when the filter leaves it unchanged."""
+    u_world = np.asarray(u_world, dtype=np.float64)
+    bodies = np.asarray(bodies, dtype=np.float64).reshape(-1, 3)
+    obstacles = np.asarray(obstacles, dtype=np.float64).reshape(-1, 2)
+    theta = np.float64(theta_rad)
+    body_points = readings_to_points(bodies[:, 0], bodies[:, 1], bodies[:, 2], robot.offset_m)
+    wall_points = readings_to_points(obstacles[:, 0], obstacles[:, 1], None, robot.offset_m)
+    u_safe, status = filter_command(world_to_local(u_world, theta), body_points, wall_points, robot, safety)
+    if status == UNCHANGED:
+        return u_world.copy(), status
+    return rotate(u_safe, theta), status
 
 
 def gain_is_exact(safety: SafetyParams, control_period_s: float) -> bool:

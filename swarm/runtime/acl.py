@@ -4,8 +4,8 @@ With ``sim.acl`` the sim server's router denies everything by default and allows
 identified by a Zenoh user name and password (``usrpwd`` authentication), exactly what its place in the
 graph needs. Agent i (user ``robot-<i>``) may, through the router:
 
-- subscribe to its own pose ``robot/<i>/pose`` and its neighbours' messages ``agent/<j>/msg``
-  (``declare_subscriber`` in, ``put`` out);
+- subscribe to its own pose ``robot/<i>/pose``, its own sensor reading ``robot/<i>/sense`` (scenarios
+  with ``safety``) and its neighbours' messages ``agent/<j>/msg`` (``declare_subscriber`` in, ``put`` out);
 - publish its command ``robot/<i>/cmd`` and its message ``agent/<i>/msg`` (``put`` in). Zenoh clients
   only send a sample once the router has told them that someone subscribes to it, so the router must
   also pass them the declarations of those subscribers (``declare_subscriber`` out on ``robot/*/cmd``,
@@ -64,7 +64,7 @@ def robot_rules(
     (``tokens``)."""
     user = user_of(robot)
     ros = ros2_keys or {"heard": [], "published": [], "tokens": []}
-    heard = [keys.pose(robot), *(keys.msg(j) for j in neighbours), *ros["heard"]]
+    heard = [keys.pose(robot), keys.sense(robot), *(keys.msg(j) for j in neighbours), *ros["heard"]]
     watched = [keys.alive_sim, *(keys.alive_agent(j) for j in neighbours)]
     configs = [keys.config(robot), Keys.any_run_config(robot)]
 

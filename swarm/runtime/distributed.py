@@ -480,6 +480,7 @@ def _run_distributed(
         "restarted_agents_exit_status": [process.poll() for process in faults.restarted],
         "killed_process_groups": len(supervisor.killed),
     }
+    outcome.update(body_results(scenario, stats, records, poses))
     outcome["runtime"] = runtime_summary(scenario, stats, records, endpoint, wall_s, first_tick_s)
     if stats.get("agents_ready_unix_s") is not None:
         outcome["runtime"]["agents_ready_s"] = round(stats["agents_ready_unix_s"] - started_unix_s, 3)
@@ -504,6 +505,33 @@ def _run_distributed(
     write_metrics(out_dir, outcome)
     task_pictures(out_dir, scenario, times_s, poses, outcome)  # rendezvous: write_pictures
     return outcome
+
+
+def body_results(scenario: Scenario, stats: dict, records: dict[int, dict], poses: np.ndarray) -> dict:
+    """``contacts`` as PyBullet reported them (robot-robot and robot-obstacle pairs touching at any
+    physics substep of a tick: ``server_stats.json``), ``min_clearance_m`` from the trajectory (the
+    bumpers' smallest gap at a tick), and ``safety_filter``: the agents' counts summed (None without a
+    filter): ``interventions``, ``infeasible``, and the sensor readings ``missing`` (a tick braked
+    blind), ``invalid`` and ``unauthenticated`` (docs/safety.md)."""
+    from swarm.core.obstacles import Capsules
+    from swarm.scenarios.safety_results import contact_results
+
+    geometry = contact_results(poses, scenario.robot.body_radius_m, Capsules(scenario.obstacles))
+    contacts = stats.get("contacts")
+    filter_counts = None
+    if scenario.safety is not None:
+        filter_counts = dict.fromkeys(
+            ("interventions", "infeasible", "missing", "invalid", "unauthenticated"), 0
+        )
+        for record in records.values():
+            for name, count in (record.get("safety_filter") or {}).items():
+                if name in filter_counts:
+                    filter_counts[name] += int(count)
+    return {
+        "contacts": contacts if isinstance(contacts, dict) else geometry["contacts"],
+        "min_clearance_m": geometry["min_clearance_m"],
+        "safety_filter": filter_counts,
+    }
 
 
 def runtime_summary(
@@ -546,7 +574,7 @@ def rejected_counts(stats: dict, records: dict[int, dict]) -> dict:
     callback: none); and exceptions caught in callbacks."""
 
     def total(stream: str, kind: str) -> int:
-        return sum(int(record.get(stream, {}).get(kind, 0)) for record in records.values())
+        return sum(int((record.get(stream) or {}).get(kind, 0)) for record in records.values())
 
     counts: dict = {
         reason: {
@@ -556,6 +584,8 @@ def rejected_counts(stats: dict, records: dict[int, dict]) -> dict:
         }
         for reason in ("invalid", "unauthenticated", "old", "future", "ring_full")
     }
+    for reason in ("invalid", "unauthenticated"):  # the sensor readings of a safety filter
+        counts[reason]["readings"] = total("safety_filter", reason)
     counts["callback_errors"] = int(stats.get("callback_errors", 0)) + sum(
         int(record.get("callback_errors", 0)) for record in records.values()
     )

@@ -147,9 +147,11 @@ def run_scenario(
             f"controller: {kind.name} (a central {kind.task} controller) runs on the kinematic engine only"
             " in this version; the decentralized kinds run on the robots' agents (docs/tasks.md)"
         )
-    if scenario.sim.engine == "pybullet" and (scenario.safety is not None or scenario.obstacles):
-        key = "safety" if scenario.safety is not None else "obstacles"
-        raise ScenarioError(f"{key}: needs the kinematic engine in this version (docs/safety.md)")
+    if scenario.sim.engine == "pybullet" and scenario.safety is not None and kind.central:
+        raise ScenarioError(  # the filter runs in each robot's agent, on its own sensor reading
+            f"safety: the pybullet engine filters in each robot's agent; controller: {kind.name} runs"
+            " centrally (robot_agent.central), so it takes the kinematic engine (docs/safety.md)"
+        )
     if scenario.sim.engine == "pybullet":
         from swarm.runtime.distributed import run_distributed
 

@@ -4,6 +4,8 @@ The one place that knows what travels on the wire. Key space of one run (``<run>
 
     swarm/<run>/robot/<i>/pose     sim -> agent i          Pose: tick, sim time, x, y, theta (axle centre)
     swarm/<run>/robot/<i>/cmd      agent i -> sim          Command: tick, wheel linear speeds left/right (m/s)
+    swarm/<run>/robot/<i>/sense    sim -> agent i          Sensing: tick, what robot i's range sensor sees
+                                                           (scenarios with ``safety`` only; docs/safety.md)
     swarm/<run>/agent/<i>/msg      agent i -> neighbours   AgentMessage: tick, message vector
     swarm/<run>/config/<i>         queryable of the sim    AgentConfig of robot i (scenario, graph, policy);
                                                            an agent without a run id asks swarm/*/config/<i>
@@ -83,6 +85,9 @@ class Keys:
     def cmd(self, robot: int) -> str:
         return f"{self.prefix}/robot/{int(robot)}/cmd"
 
+    def sense(self, robot: int) -> str:
+        return f"{self.prefix}/robot/{int(robot)}/sense"
+
     def msg(self, robot: int) -> str:
         return f"{self.prefix}/agent/{int(robot)}/msg"
 
@@ -131,11 +136,13 @@ class Keys:
         return parts[1] if _RUN_ID.match(parts[1]) else None
 
     def robot_of(self, key: str, kind: str) -> int | None:
-        """Robot index in a concrete key of ``kind`` (``pose``, ``cmd``, ``msg``, ``config``, ``alive``),
+        """Robot index in a concrete key of ``kind`` (``pose``, ``cmd``, ``sense``, ``msg``, ``config``,
+        ``alive``),
         or None when the key is not of that shape."""
         patterns = {
             "pose": (f"{self.prefix}/robot/", "/pose"),
             "cmd": (f"{self.prefix}/robot/", "/cmd"),
+            "sense": (f"{self.prefix}/robot/", "/sense"),
             "msg": (f"{self.prefix}/agent/", "/msg"),
             "config": (f"{self.prefix}/config/", ""),
             "alive": (f"{self.prefix}/alive/agent/", ""),
@@ -174,6 +181,18 @@ class Command:
     tick: int
     left_mps: float
     right_mps: float
+
+
+@dataclass(frozen=True)
+class Sensing:
+    """What robot i's range sensor sees at a tick (sim -> agent i; ``swarm.sim.sensing``, robot frame):
+    ``bodies (M, 3)`` the range (m), bearing (rad) and relative heading (rad) of every other body within
+    the sensing radius, ``obstacles (K, 2)`` the range and bearing of each obstacle's nearest surface
+    point within it."""
+
+    tick: int
+    bodies: np.ndarray = field(compare=False)
+    obstacles: np.ndarray = field(compare=False)
 
 
 @dataclass(frozen=True)
@@ -338,6 +357,39 @@ def decode_command(data: bytes) -> Command | None:
     if tick is None or values is None:
         return None
     return Command(tick, *values)
+
+
+MAX_SENSED = 4096
+"""Bodies or obstacles one sensing reading may hold (a reading is dropped, invalid, beyond it)."""
+
+
+def encode_sensing(tick: int, bodies: np.ndarray, obstacles: np.ndarray) -> bytes:
+    """``bodies (M, 3)`` and ``obstacles (K, 2)`` travel as little-endian float64 bytes."""
+    body_bytes = np.ascontiguousarray(bodies, dtype="<f8").reshape(-1).tobytes()
+    obstacle_bytes = np.ascontiguousarray(obstacles, dtype="<f8").reshape(-1).tobytes()
+    return _pack({"k": int(tick), "b": body_bytes, "o": obstacle_bytes})
+
+
+def decode_sensing(data: bytes) -> Sensing | None:
+    """None unless the tick is valid, both arrays are whole rows of at most ``MAX_SENSED``, every range
+    is in ``[0, MAX_COORD_M]`` and every angle finite within ``MAX_ANGLE_RAD``."""
+    body = _unpack(data, 64 + 8 * 3 * MAX_SENSED + 8 * 2 * MAX_SENSED)
+    if body is None:
+        return None
+    tick = _int(body.get("k"), 0, MAX_TICK)
+    rows = []
+    for key, width in (("b", 3), ("o", 2)):
+        raw = body.get(key)
+        if not isinstance(raw, bytes) or len(raw) % (8 * width) or len(raw) > 8 * width * MAX_SENSED:
+            return None
+        values = np.frombuffer(raw, dtype="<f8").astype(np.float64).reshape(-1, width)
+        ranges, angles = values[:, 0], values[:, 1:]
+        if not (np.all((ranges >= 0) & (ranges <= MAX_COORD_M)) and np.all(np.abs(angles) <= MAX_ANGLE_RAD)):
+            return None  # NaN fails the comparisons too
+        rows.append(values)
+    if tick is None:
+        return None
+    return Sensing(tick, rows[0], rows[1])
 
 
 SHORT_MESSAGE_DIM = 64

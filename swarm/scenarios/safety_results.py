@@ -61,4 +61,6 @@ def safety_summary_line(outcome: dict) -> str | None:
     counts = outcome.get("safety_filter")
     if counts is not None:
         line += f"; filter changed {counts['interventions']} commands, {counts['infeasible']} infeasible"
+        if counts.get("missing"):
+            line += f", {counts['missing']} ticks braked without a sensor reading"
     return line

@@ -80,3 +80,27 @@ def _noisy(rng: np.random.Generator, distance: np.ndarray, bearing: np.ndarray, 
     noisy_distance = np.maximum(distance + rng.normal(0.0, noise_m, distance.shape), 0.0)
     noisy_bearing = bearing + rng.normal(0.0, 1.0, bearing.shape) * noise_m / np.maximum(distance, 1e-6)
     return noisy_distance, wrap_angle(noisy_bearing)
+
+
+def robot_reading(readings: Readings, robot: int, environment: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """What robot ``robot`` of ``environment`` sees, as the sim server sends it (``wire.Sensing``):
+    ``(M, 3)`` range, bearing and relative heading of each body seen, in robot order, and ``(K, 2)``
+    range and bearing of each obstacle seen, in obstacle order."""
+    seen = readings.body_seen[environment, robot]
+    bodies = np.stack(
+        [
+            readings.body_range_m[environment, robot][seen],
+            readings.body_bearing_rad[environment, robot][seen],
+            readings.body_heading_rad[environment, robot][seen],
+        ],
+        axis=-1,
+    )
+    walls = readings.obstacle_seen[environment, robot]
+    obstacles = np.stack(
+        [
+            readings.obstacle_range_m[environment, robot][walls],
+            readings.obstacle_bearing_rad[environment, robot][walls],
+        ],
+        axis=-1,
+    )
+    return bodies.reshape(-1, 3), obstacles.reshape(-1, 2)
