@@ -4,7 +4,9 @@ The agent knows its robot id, the run id and an endpoint of the sim server; it f
 else (graph neighbours, controller, policy) from ``swarm/<run>/config/<i>``. It then subscribes to
 exactly its own pose key and to the message keys of its graph neighbours (never a wildcard over
 robots), runs its onboard controller (:mod:`swarm.sim.onboard`, numpy only) and publishes, each tick,
-its message to its neighbours and its saturated wheel speeds to the sim.
+its message to its neighbours and its saturated wheel speeds to the sim. With ``safety`` in the
+scenario it also subscribes to its own sensor reading ``robot/<i>/sense`` and passes its controller's
+command through the barrier filter (:class:`SenseReader`, docs/safety.md).
 
 Timing (docs/design.md, "Information timing"): at tick k the agent acts on its pose of tick k and on its
 neighbours' messages of tick k-1. ``lockstep``: it waits up to ``sim.neighbour_deadline_s`` (from

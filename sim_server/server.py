@@ -1,7 +1,8 @@
 """The sim server: PyBullet physics of the robots behind Zenoh (docs/design.md, "Processes").
 
 Every control tick k it reads the axle-centre poses, streams them to ``trajectory.jsonl`` and
-publishes robot i's pose on ``swarm/<run>/robot/<i>/pose`` (its own key); it applies the wheel
+publishes robot i's pose on ``swarm/<run>/robot/<i>/pose`` (its own key), and with ``safety`` first
+its range-sensor reading on ``robot/<i>/sense`` (docs/safety.md); it applies the wheel
 commands that came back on ``robot/<i>/cmd`` (saturated again here, for safety) and advances the
 physics by one control period.
 
@@ -32,7 +33,8 @@ Each ``trajectory.jsonl`` line also carries ``wheels``: the (saturated) wheel sp
 that tick to the next, so the controller's timing can be checked after the run. Per-tick statistics
 (ticks served, command latency) go to ``server_stats.json``, with, per robot, the ticks without a
 command of that tick, the ticks its agent was gone, and the sim times its agent went and came back;
-the file is rewritten every ``STATS_EVERY_S`` while the run goes on (a killed server leaves it).
+the file is rewritten every ``STATS_EVERY_S`` while the run goes on (a killed server leaves it), with
+``contacts``: the robot-robot and robot-obstacle pairs PyBullet found touching at any substep of a tick.
 """
 
 from __future__ import annotations

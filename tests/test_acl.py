@@ -23,6 +23,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -151,7 +152,13 @@ def rogue(endpoint: str, run: str, robot: int, count: int, credentials: str, out
 
         return count_sample
 
-    puts = {"own_future_commands": 0, "other_commands": 0, "other_poses": 0, "other_messages": 0}
+    puts = {
+        "own_future_commands": 0,
+        "other_commands": 0,
+        "other_poses": 0,
+        "other_messages": 0,
+        "other_readings": 0,
+    }
     with (
         open_with_retries(config) as watcher,
         open_with_retries(config) as listener,
@@ -164,7 +171,7 @@ def rogue(endpoint: str, run: str, robot: int, count: int, credentials: str, out
             ),
         ]
         for i in range(count):
-            for key in (keys.pose(i), keys.cmd(i), keys.msg(i)):
+            for key in (keys.pose(i), keys.sense(i), keys.cmd(i), keys.msg(i)):
                 entities.append(
                     listener.declare_subscriber(key, counter("one_by_one"), allowed_origin=remote)
                 )
@@ -219,7 +226,9 @@ def rogue(endpoint: str, run: str, robot: int, count: int, credentials: str, out
                 writer.put(keys.cmd(i), wire.encode_command(pose.tick, ROGUE_WHEELS))
                 writer.put(keys.pose(i), wire.encode_pose(pose.tick + 1, pose.time_s, (40.0, 40.0, 0.0)))
                 writer.put(keys.msg(i), wire.encode_message(pose.tick, (40.0, 40.0)))
+                writer.put(keys.sense(i), wire.encode_sensing(pose.tick, np.zeros((0, 3)), np.zeros((0, 2))))
                 puts["other_commands"] += 1
+                puts["other_readings"] += 1
                 puts["other_poses"] += 1
                 puts["other_messages"] += 1
         for entity in [*entities, sim_alive, own_pose]:
@@ -236,6 +245,7 @@ def test_acl_run_converges_and_a_rogue_robot_reaches_only_its_neighbourhood(tmp_
     data = yaml.safe_load((PROJECT_ROOT / "scenarios/security/acl.yaml").read_text())
     data["robots"]["count"] = count
     data["sim"]["deadline"] = 5.0  # a loaded machine misses no tick: every tick is served, as counted below
+    data["safety"] = {"kind": "barrier"}  # each robot's own sensor reading on its own key, too
     scenario = tmp_path / "acl.yaml"
     scenario.write_text(yaml.safe_dump(data))
     steps = round(data["sim"]["duration"] / data["sim"]["control_period"])
@@ -287,8 +297,9 @@ def test_acl_run_converges_and_a_rogue_robot_reaches_only_its_neighbourhood(tmp_
     got = report["got"]
     # the whole run, by wildcard: nothing (the router refuses the declarations)
     assert got["wildcard"] == {} and got["wildcard_alive"] == {} and report["wildcard_configs"] == []
-    # every key one by one: exactly its own pose and its neighbours' messages, and many of them
-    assert set(got["one_by_one"]) == {keys.pose(rogue_robot), *(keys.msg(j) for j in neighbours)}
+    # every key one by one: exactly its own pose and reading and its neighbours' messages, many of them
+    own = {keys.pose(rogue_robot), keys.sense(rogue_robot), *(keys.msg(j) for j in neighbours)}
+    assert set(got["one_by_one"]) == own
     assert all(number > 10 for number in got["one_by_one"].values()), got["one_by_one"]
     assert set(got["alive"]) == {keys.alive_sim, *(keys.alive_agent(j) for j in neighbours)}
     assert report["configs"] == [keys.config(rogue_robot)]
@@ -309,6 +320,8 @@ def test_acl_run_converges_and_a_rogue_robot_reaches_only_its_neighbourhood(tmp_
         agent = json.loads(path.read_text())
         assert agent["poses"]["old"] == 0 and agent["poses"]["invalid"] == 0, agent["poses"]
         assert agent["messages"]["old"] == 0 and agent["messages"]["invalid"] == 0, agent["messages"]
+        readings = agent["safety_filter"]  # the rogue's empty readings reached no one
+        assert readings["unauthenticated"] == readings["invalid"] == readings["missing"] == 0, readings
         assert agent["ticks"] == steps and agent["exit_reason"] == "sim gone"
 
 
