@@ -7,7 +7,9 @@ every pose (``swarm/<run>/robot/*/pose``, the one wildcard over robots in the ru
 reason the controller is not decentralized), waits for all poses of tick k, and publishes every
 robot's wheel command for tick k. It holds the liveliness token of every robot's controller
 (``alive/agent/<i>``), so the sim waits for it as for N agents, and records itself in
-``<log-dir>/central.json``.
+``<log-dir>/central.json``. With ``safety`` in the scenario it also hears every robot's sensor reading
+(``robot/*/sense``) and filters each robot's command with that robot's reading alone, as the robot's
+own agent would (``swarm.core.safety.filter_reading``; a robot without its reading brakes).
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from swarm.core import safety
 from swarm.core.exit_codes import ExitCode
 from swarm.core.experts import centralized_mec_velocity, complete_consensus_velocity
 from swarm.core.robot import RobotParams, controlled_point, point_velocity_to_wheels
@@ -48,6 +51,11 @@ class CentralController:
         self._stop = False
         self._sim_alive: bool | None = None
         self._poses: dict[int, dict[int, wire.Pose]] = {}  # tick -> robot -> pose
+        self._readings: dict[int, dict[int, wire.Sensing]] = {}  # tick -> robot -> sensor reading
+        self._safety_on = False
+        self.filter_counts = dict.fromkeys(
+            ("received", "invalid", "unauthenticated", "missing", "interventions", "infeasible"), 0
+        )
         self._last_tick = -1  # the newest tick computed
         self._last_tick_at_s = 0.0  # when it was taken
         self._step_s = 1.0  # swarm.runtime.ticks eq. (1), from the config once fetched
@@ -107,6 +115,52 @@ class CentralController:
                 return
             self._poses.setdefault(pose.tick, {})[robot] = pose
             self._cond.notify_all()
+
+    def _on_sense(self, sample: zenoh.Sample) -> None:
+        key_expr = str(sample.key_expr)
+        robot = self.keys.robot_of(key_expr, "sense")
+        payload = sample.payload.to_bytes()
+        run_key, counts = self._run_key, self.filter_counts
+        if run_key is not None and not run_key.check(key_expr, payload, wire.attachment_of(sample)):
+            with self._cond:
+                counts["unauthenticated"] += 1
+            return
+        reading = wire.decode_sensing(payload)
+        with self._cond:
+            if reading is None or robot is None:
+                counts["invalid"] += 1
+                return
+            counts["received"] += 1
+            if reading.tick >= self._last_tick:  # the tick being computed may still wait for it
+                self._readings.setdefault(reading.tick, {})[robot] = reading
+                self._cond.notify_all()
+
+    def _filtered(
+        self, tick: int, robots: list[int], poses: np.ndarray, u_world: np.ndarray, params, safe_params
+    ):
+        """Each robot's command through the barrier filter with its own reading of ``tick`` (waited for
+        up to ``POSE_DEADLINE_S``); a robot without one brakes."""
+        with self._cond:
+            self._wait(
+                lambda: len(self._readings.get(tick, {})) >= len(robots),
+                time.perf_counter() + POSE_DEADLINE_S,
+            )
+            readings = self._readings.pop(tick, {})
+            for old in [k for k in self._readings if k <= tick]:
+                del self._readings[old]
+        counts, out = self.filter_counts, u_world.copy()
+        for row, i in enumerate(robots):
+            reading = readings.get(i)
+            if reading is None:
+                counts["missing"] += 1
+                out[row] = 0.0
+                continue
+            out[row], status = safety.filter_reading(
+                u_world[row], poses[row, 2], reading.bodies, reading.obstacles, params, safe_params
+            )
+            counts["interventions"] += status == safety.CHANGED
+            counts["infeasible"] += status == safety.INFEASIBLE
+        return out
 
     def _wait(self, ready, until_s: float) -> bool:
         while not ready():
@@ -172,6 +226,13 @@ class CentralController:
         params = RobotParams(**config.robot_params)
         entities.append(session.declare_subscriber(keys.all_poses, guard(self._on_pose)))
         record["subscriptions"].append(keys.all_poses)
+        safe_params = None
+        if config.scenario.get("safety") is not None:
+            safe_params = safety.SafetyParams(**config.scenario["safety"])
+            self._safety_on = True
+            all_readings = f"{keys.prefix}/robot/*/sense"
+            entities.append(session.declare_subscriber(all_readings, guard(self._on_sense)))
+            record["subscriptions"].append(all_readings)
         options = wire.publisher_options(config.mode)
         publishers = [session.declare_publisher(keys.cmd(i), **options) for i in range(count)]
         record["publications"] = [keys.cmd(i) for i in range(count)]
@@ -206,6 +267,8 @@ class CentralController:
                     )
                 else:
                     u_world = complete_consensus_velocity(controlled_point(poses, params.offset_m), gain)
+                if safe_params is not None:
+                    u_world = self._filtered(tick, robots, poses, u_world, params, safe_params)
                 wheels = point_velocity_to_wheels(u_world, poses[:, 2], params)
                 for row, i in enumerate(robots):
                     payload = wire.encode_command(tick, wheels[row])
@@ -221,6 +284,8 @@ class CentralController:
     def _write_record(self) -> None:
         if self.log_dir is None:
             return
+        with self._cond:
+            self.record["safety_filter"] = dict(self.filter_counts) if self._safety_on else None
         path = self.log_dir / "central.json"
         path.write_text(json.dumps(self.record, indent=2) + "\n")
 

@@ -159,7 +159,11 @@ def test_the_pybullet_runtime_filters_in_each_agent_and_counts_contacts(tmp_path
         assert record["safety_filter"]["received"] == record["ticks"]
 
 
-def test_a_central_controller_with_the_filter_is_refused_on_pybullet(tmp_path):
+@pytest.mark.runtime
+def test_a_central_controller_filters_each_robot_with_its_own_reading(tmp_path):
+    """centralized_mec (one process for every robot) with the filter: each robot's command filtered
+    with that robot's reading, heard on robot/*/sense; no contact, where without it the two head-on
+    robots press together (the plain run of the test above, same start)."""
     import yaml
 
     from swarm.cli import main
@@ -168,5 +172,11 @@ def test_a_central_controller_with_the_filter_is_refused_on_pybullet(tmp_path):
     path.write_text(
         yaml.safe_dump({**HEAD_ON, "controller": {"kind": "centralized_mec"}, "safety": {"kind": "barrier"}})
     )
-    assert main(["run", str(path), "--out", str(tmp_path / "out"), "--quiet"]) == 2
-    assert not (tmp_path / "out" / "trajectory.jsonl").exists()
+    assert main(["run", str(path), "--out", str(tmp_path / "out"), "--quiet"]) == 0
+    metrics = json.loads((tmp_path / "out" / "metrics.json").read_text())
+    assert metrics["contacts"] == {"robot_robot": 0, "robot_obstacle": 0, "ticks": 0}
+    assert metrics["min_clearance_m"] > 0
+    counts = metrics["safety_filter"]
+    assert counts["interventions"] > 0 and counts["missing"] == counts["infeasible"] == 0
+    record = json.loads((tmp_path / "out" / "logs" / "central.json").read_text())
+    assert record["safety_filter"]["received"] == 3 * record["ticks"]

@@ -480,7 +480,8 @@ def _run_distributed(
         "restarted_agents_exit_status": [process.poll() for process in faults.restarted],
         "killed_process_groups": len(supervisor.killed),
     }
-    outcome.update(body_results(scenario, stats, records, poses))
+    central_record = _read_json(logs / "central.json")  # a central controller's own counts
+    outcome.update(body_results(scenario, stats, [*records.values(), central_record], poses))
     outcome["runtime"] = runtime_summary(scenario, stats, records, endpoint, wall_s, first_tick_s)
     if stats.get("agents_ready_unix_s") is not None:
         outcome["runtime"]["agents_ready_s"] = round(stats["agents_ready_unix_s"] - started_unix_s, 3)
@@ -507,7 +508,7 @@ def _run_distributed(
     return outcome
 
 
-def body_results(scenario: Scenario, stats: dict, records: dict[int, dict], poses: np.ndarray) -> dict:
+def body_results(scenario: Scenario, stats: dict, records: list[dict], poses: np.ndarray) -> dict:
     """``contacts`` as PyBullet reported them (robot-robot and robot-obstacle pairs touching at any
     physics substep of a tick: ``server_stats.json``), ``min_clearance_m`` from the trajectory (the
     bumpers' smallest gap at a tick), and ``safety_filter``: the agents' counts summed (None without a
@@ -523,7 +524,7 @@ def body_results(scenario: Scenario, stats: dict, records: dict[int, dict], pose
         filter_counts = dict.fromkeys(
             ("interventions", "infeasible", "missing", "invalid", "unauthenticated"), 0
         )
-        for record in records.values():
+        for record in records:
             for name, count in (record.get("safety_filter") or {}).items():
                 if name in filter_counts:
                     filter_counts[name] += int(count)

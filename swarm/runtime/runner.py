@@ -147,11 +147,6 @@ def run_scenario(
             f"controller: {kind.name} (a central {kind.task} controller) runs on the kinematic engine only"
             " in this version; the decentralized kinds run on the robots' agents (docs/tasks.md)"
         )
-    if scenario.sim.engine == "pybullet" and scenario.safety is not None and kind.central:
-        raise ScenarioError(  # the filter runs in each robot's agent, on its own sensor reading
-            f"safety: the pybullet engine filters in each robot's agent; controller: {kind.name} runs"
-            " centrally (robot_agent.central), so it takes the kinematic engine (docs/safety.md)"
-        )
     if scenario.sim.engine == "pybullet":
         from swarm.runtime.distributed import run_distributed
 
