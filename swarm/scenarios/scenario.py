@@ -137,6 +137,9 @@ class ControllerSpec(_Strict):
     gain: float = Field(1.0, gt=0, description="consensus gain K in 1/s (thesis eq. 3.1)")
     directions: int = Field(16, ge=3, le=256, description="mec_flood: number M of flooded directions")
     reverse: bool = Field(True, description="mec_flood, centralized_mec: drive backwards to a target behind")
+    spacing_m: float | None = Field(
+        None, gt=0, description="pack_flood: slot spacing (default 2(r + l) + 0.05)"
+    )
 
     @field_validator("kind")
     @classmethod
@@ -149,7 +152,7 @@ class ControllerSpec(_Strict):
     def _options_of_kind(self) -> ControllerSpec:
         # model and gain predate the registry and stay accepted (and unused) by every kind
         takes = CONTROLLER_KINDS[self.kind].options
-        for option in ("directions", "reverse"):
+        for option in ("directions", "reverse", "spacing_m"):
             default = type(self).model_fields[option].default
             if getattr(self, option) != default and option not in takes:
                 taken = ", ".join(takes) or "no options"

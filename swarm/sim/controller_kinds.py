@@ -29,11 +29,13 @@ class ControllerArgs:
     policy: Any = None  # gnn: a policy file path (batched) or its bytes (onboard)
     task: Any = None  # the scenario's task section (swarm.core.tasks)
     robot_id: int = 0  # onboard: the robot it runs on (what a task's per-robot form needs)
+    spacing_m: float | None = None  # pack_flood: slot spacing (None: its default from the robot)
 
     @classmethod
     def from_spec(cls, spec: Mapping[str, Any], robot: RobotParams, control_period_s: float, **more):
         """From a scenario's ``controller`` section (a mapping, e.g. ``ControllerSpec.model_dump()``)."""
-        options = {key: spec[key] for key in ("gain", "directions", "reverse") if spec.get(key) is not None}
+        keys = ("gain", "directions", "reverse", "spacing_m")
+        options = {key: spec[key] for key in keys if spec.get(key) is not None}
         return cls(robot=robot, control_period_s=control_period_s, **options, **more)
 
 
@@ -107,6 +109,20 @@ def _onboard_capt_flood(args: ControllerArgs):
     )
 
 
+def _pack_flood(args: ControllerArgs):
+    from swarm.sim.pack_flood import PackFlood
+
+    return PackFlood(args.robot, args.control_period_s, args.robot_count, args.spacing_m, args.reverse)
+
+
+def _onboard_pack_flood(args: ControllerArgs):
+    from swarm.sim.pack_flood import OnboardPackFlood
+
+    return OnboardPackFlood(
+        args.robot, args.control_period_s, args.robot_count, args.robot_id, args.spacing_m, args.reverse
+    )
+
+
 def _formation(args: ControllerArgs):
     if getattr(args.task, "kind", None) != "formation":
         raise ValueError("this controller does the formation task: it needs task: {kind: formation, ...}")
@@ -154,6 +170,13 @@ CONTROLLER_KINDS: dict[str, ControllerKind] = {
             _mec_flood,
             _onboard_mec_flood,
             ("directions", "reverse"),
+        ),
+        ControllerKind(
+            "pack_flood",
+            "gathering bodies: flood the starts, CAPT to a hexagonal packing at their MEC centre",
+            _pack_flood,
+            _onboard_pack_flood,
+            ("reverse", "spacing_m"),
         ),
         ControllerKind(
             "centralized_mec",

@@ -1,0 +1,167 @@
+"""``pack_flood``: gathering bodies, decentralized, in both forms (batched and on board one robot).
+
+Driving every robot at one common point (``mec_flood``) with a safety filter jams: bodies that must
+stay apart block each other on their way to the same point (the known deadlock of barrier filters on
+a common goal; docs/safety.md). ``pack_flood`` gives every robot a point of its own instead: the slots
+of a tight packing (``swarm.core.packing.hex_packing``, spacing ``spacing_m``) centred on the minimum
+enclosing circle of the robots' *start* positions, assigned by CAPT (bottleneck-optimal, ties by
+least sum of squares; Turpin, Michael, Kumar), and time-synchronized straight-line motion, which
+CAPT proves collision-free for well-separated starts and slots.
+
+Information: as ``capt_flood``, every robot floods over the communication graph only the start
+positions of the robots it knows (its message ``N x (known, x, y)``; the merge is a union, idempotent
+under loss and repetition). A robot holds still until it knows every start, or for at most ``N`` ticks
+of its own (the longest a flood can take on a connected graph of N); then it computes from what it
+knows the centre, the slots and the assignment, and drives its axle toward its slot at
+``v_max d_i / B`` (``d_i`` its start's distance to its slot, ``B`` the assignment's bottleneck), so
+that all arrive together; it recomputes whenever it learns of more robots. Robots that know everyone
+compute the same assignment from the same input: no slot is claimed twice.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from swarm.core.experts import drive_toward_velocity
+from swarm.core.mec import welzl_circle
+from swarm.core.packing import hex_packing
+from swarm.core.robot import RobotParams
+from swarm.core.tasks.formation import capt_assignment
+from swarm.sim.formation_controllers import CaptFlood
+from swarm.sim.links import Links
+
+SPACING_MARGIN_M = 0.05
+"""Default slot spacing ``2 (r + l) + SPACING_MARGIN_M``: a bumper's width and a controlled-point offset
+each side, plus the safety filter's default margin (0.03 m) and 2 cm to spare."""
+
+
+def default_spacing_m(robot: RobotParams) -> float:
+    return 2.0 * (robot.body_radius_m + robot.offset_m) + SPACING_MARGIN_M
+
+
+def plan(starts: np.ndarray, shape: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(slots (M, 2), speeds factor (M,))`` for M known starts: the packing ``shape`` centred on the
+    starts' minimum enclosing circle, each start's CAPT slot, and ``d_i / B`` (1 where ``B = 0``)."""
+    cx, cy, _ = welzl_circle(starts[:, 0].tolist(), starts[:, 1].tolist(), len(starts))
+    slots = shape + np.array([cx, cy])
+    assignment = capt_assignment(starts, slots)
+    targets = slots[assignment]
+    distance = np.sqrt(((targets - starts) ** 2).sum(-1))
+    bottleneck = distance.max()
+    return targets, distance / bottleneck if bottleneck > 0 else np.ones(len(starts))
+
+
+class OnboardPackFlood:
+    """``pack_flood`` for robot ``robot_id``: ``act_one(pose (3,), neighbour_messages (m, 3N), weights)
+    -> (u_world (2,), message (3N,))`` (``swarm.sim.onboard``'s protocol)."""
+
+    def __init__(
+        self,
+        robot: RobotParams,
+        control_period_s: float,
+        robot_count: int,
+        robot_id: int,
+        spacing_m: float | None = None,
+        reverse: bool = True,
+    ):
+        self.robot = robot
+        self.control_period_s = float(control_period_s)
+        self.count = int(robot_count)
+        self.robot_id = int(robot_id)
+        self.reverse = bool(reverse)
+        self.message_dim = 3 * self.count
+        self.shape = hex_packing(self.count, spacing_m or default_spacing_m(robot))
+        self._memory: np.ndarray | None = None  # (N, 3)
+        self._known = np.zeros(self.count, dtype=bool)  # what the plan was computed from
+        self._target: np.ndarray | None = None
+        self._speed = 0.0
+        self._ticks = 0
+        import scipy.optimize  # noqa: F401  (capt_assignment's, before the agent is ready: formation_onboard)
+
+    def act_one(
+        self, pose: np.ndarray, neighbour_messages: np.ndarray, weights: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        pose = np.asarray(pose, dtype=np.float64)
+        self._ticks += 1
+        if self._memory is None:
+            self._memory = np.zeros((self.count, 3))
+            self._memory[self.robot_id] = (1.0, pose[0], pose[1])
+        memory = self._memory
+        for message in np.asarray(neighbour_messages, dtype=np.float64).reshape(-1, self.count, 3):
+            new = (message[:, 0] != 0.0) & (memory[:, 0] == 0.0)
+            memory[new] = message[new]
+        known = memory[:, 0] != 0.0
+        ready = bool(known.all()) or self._ticks > self.count
+        if ready and not np.array_equal(known, self._known):
+            members = np.flatnonzero(known)
+            targets, factors = plan(memory[members, 1:], self.shape)
+            mine = np.searchsorted(members, self.robot_id)
+            self._target, self._speed = targets[mine], self.robot.v_max_mps * factors[mine]
+            self._known = known
+        if self._target is None:
+            return np.zeros(2), memory.reshape(-1).copy()
+        u_world = drive_toward_velocity(pose, self._target, self._speed, self.control_period_s, self.reverse)
+        return u_world, memory.reshape(-1).copy()
+
+
+class PackFlood(CaptFlood):
+    """``pack_flood`` for B swarms at once (the kinematic engine): the rule of :class:`OnboardPackFlood`
+    for every robot, its memory in its own message of last tick (``inbox[:, i]``, merged as
+    ``capt_flood`` merges it). A robot whose own entry there is empty starts over (tick 0, or an
+    environment restarted by ``KinematicSim.restart``): its tick count and plan are forgotten."""
+
+    def __init__(
+        self,
+        robot: RobotParams,
+        control_period_s: float,
+        robot_count: int,
+        spacing_m: float | None = None,
+        reverse: bool = True,
+    ):
+        self.robot = robot
+        self.control_period_s = float(control_period_s)
+        self.count = int(robot_count)
+        self.reverse = bool(reverse)
+        self.message_dim = 3 * self.count
+        self.shape = hex_packing(self.count, spacing_m or default_spacing_m(robot))
+        self._known: np.ndarray | None = None  # (B, N, N) what each plan was computed from
+        self._slot_of = np.zeros((0, self.count, 2))
+        self._speeds = np.zeros((0, self.count))
+        self._planned = np.zeros((0, self.count), dtype=bool)
+        self._ticks = np.zeros((0, self.count), dtype=np.int64)
+
+    def act(
+        self, poses: np.ndarray, points: np.ndarray, inbox: np.ndarray, heard: Links
+    ) -> tuple[np.ndarray, np.ndarray]:
+        batch, count = poses.shape[:2]
+        own = np.arange(count)
+        fresh = inbox[:, own, 3 * own] == 0.0  # (B, N): remembers nothing, not even itself
+        memory = self.merge(poses, inbox, heard)
+        known = memory[..., 0] != 0.0
+        if self._known is None or self._known.shape != known.shape:
+            self._known = np.zeros_like(known)
+            self._slot_of = np.zeros((batch, count, 2))
+            self._speeds = np.zeros((batch, count))
+            self._planned = np.zeros((batch, count), dtype=bool)
+            self._ticks = np.zeros((batch, count), dtype=np.int64)
+        assert self._known is not None
+        self._ticks[fresh] = 0
+        self._planned[fresh] = False
+        self._known[fresh] = False
+        self._ticks += 1
+        ready = known.all(axis=-1) | (self._ticks > count)
+        for b, i in zip(*np.nonzero(ready & np.any(known != self._known, axis=-1)), strict=True):
+            members = np.flatnonzero(known[b, i])
+            targets, factors = plan(memory[b, i, members, 1:], self.shape)
+            mine = np.searchsorted(members, i)
+            self._slot_of[b, i] = targets[mine]
+            self._speeds[b, i] = self.robot.v_max_mps * factors[mine]
+            self._planned[b, i] = True
+            self._known[b, i] = known[b, i]
+        targets = np.where(self._planned[..., None], self._slot_of, poses[..., :2])
+        speeds: Any = self._speeds  # per robot (drive_toward_velocity broadcasts it)
+        u_world = drive_toward_velocity(poses, targets, speeds, self.control_period_s, self.reverse)
+        u_world[~self._planned] = 0.0
+        return u_world, memory.reshape(batch, count, 3 * count)
