@@ -11,7 +11,7 @@ import pytest
 from swarm.core import graphs
 from swarm.core.mec import welzl_circle
 from swarm.core.obstacles import Capsules
-from swarm.core.packing import diameter, hex_packing, packing_lower_bound_m
+from swarm.core.packing import diameter, hex_packing, packing_limit_m, packing_lower_bound_m
 from swarm.core.robot import RobotParams
 from swarm.core.safety import SafetyParams
 from swarm.scenarios.safety_results import contact_results
@@ -38,6 +38,7 @@ def test_the_packing_limit_lies_between_the_bound_and_the_packing_as_known(count
     assert packing_lower_bound_m(count, spacing) <= known + 1e-12
     assert diameter(slots) >= known - 1e-9
     assert diameter(slots) == pytest.approx(known, rel=1e-9)  # small N: the rings are the optima
+    assert packing_limit_m(count, spacing) == pytest.approx((known, known), rel=1e-12)
 
 
 @pytest.mark.parametrize("count", [1, 2, 3, 9, 12, 20, 37, 50, 100])

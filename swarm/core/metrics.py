@@ -12,6 +12,7 @@ from collections.abc import Callable
 import numpy as np
 
 from swarm.core.mec import welzl_circle
+from swarm.core.packing import packing_limit_m
 
 
 def _check_positions(positions: np.ndarray) -> np.ndarray:
@@ -91,26 +92,14 @@ def lower_bound_s(initial_positions: np.ndarray, threshold_m: float, v_max_mps: 
     return max(0.0, radius_m - threshold_m / math.sqrt(3.0)) / v_max_mps
 
 
-MIN_DIAMETER_UNIT = {1: 0.0, 2: 1.0, 3: 1.0, 4: math.sqrt(2.0), 5: (1 + math.sqrt(5.0)) / 2}
-"""Smallest diameter of ``n`` points at pairwise distance >= 1, known exactly for small ``n``
-(Bateman and Erdos 1951; Bezdek and Fodor 1999): the regular polygons up to 5, then below."""
-MIN_DIAMETER_UNIT[6] = 2 * math.sin(2 * math.pi / 5)  # a pentagon of unit circumradius and its centre
-MIN_DIAMETER_UNIT[7] = 2.0  # a hexagon and its centre
-MIN_DIAMETER_UNIT[8] = 1 / (2 * math.sin(math.pi / 14))
-
-
 def min_gathered_max_pairwise_m(count: int, body_radius_m: float) -> float:
     """The smallest ``max_pairwise`` (m) that ``count`` round bodies of radius ``body_radius_m`` can
-    reach: their centres stay ``2 r`` apart. Exact for ``count <= 8`` (``2 r D(n)``, ``MIN_DIAMETER_UNIT``);
-    above, a lower bound: a set of diameter ``D`` lies in a disk of radius ``D / sqrt(3)`` (Jung), so the
-    ``n`` disjoint bodies lie in one of radius ``D / sqrt(3) + r``, whose area is at least theirs:
-    ``D >= sqrt(3) r (sqrt(n) - 1)``. A threshold below it can never be met with bodies (PyBullet)."""
+    reach: their centres stay ``2 r`` apart, so it is the packing limit of ``swarm.core.packing`` for a
+    spacing of ``2 r``: exact for ``count <= 8`` (``packing.MIN_DIAMETER_UNIT``), a lower bound above
+    (``packing_lower_bound_m``). A threshold below it can never be met with bodies (PyBullet)."""
     if count < 1 or body_radius_m < 0:
         raise ValueError(f"need count >= 1 and body_radius_m >= 0, got {count}, {body_radius_m}")
-    if count in MIN_DIAMETER_UNIT:
-        return 2 * body_radius_m * MIN_DIAMETER_UNIT[count]
-    bound = math.sqrt(3.0) * body_radius_m * (math.sqrt(count) - 1)
-    return max(bound, 2 * body_radius_m * MIN_DIAMETER_UNIT[8])
+    return packing_limit_m(count, 2.0 * body_radius_m)[0]
 
 
 def convergence_time(times_s: np.ndarray, values: np.ndarray, threshold: float) -> float | np.ndarray:

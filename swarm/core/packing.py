@@ -28,6 +28,19 @@ import numpy as np
 
 from swarm.core.mec import welzl_circle
 
+MIN_DIAMETER_UNIT = {
+    1: 0.0,
+    2: 1.0,
+    3: 1.0,
+    4: math.sqrt(2.0),  # a square
+    5: (1 + math.sqrt(5.0)) / 2,  # a regular pentagon (its diagonal)
+    6: 2 * math.sin(2 * math.pi / 5),  # a pentagon of unit circumradius and its centre
+    7: 2.0,  # a hexagon and its centre
+    8: 1 / (2 * math.sin(math.pi / 14)),  # a heptagon and its centre
+}
+"""The packing limit ``W*(n)`` of points at mutual distance >= 1, known exactly for small ``n``
+(Bateman and Erdos 1951; Bezdek and Fodor 1999)."""
+
 _LATTICE_OFFSETS = ((0.0, 0.0), (0.5, math.sqrt(3.0) / 6.0), (0.5, 0.0))
 """Centres tried, in lattice units: a lattice point, the centroid of a triangle, an edge's midpoint."""
 
@@ -86,6 +99,16 @@ def hex_packing(count: int, spacing_m: float) -> np.ndarray:
     if not spacing_m > 0:
         raise ValueError(f"spacing_m must be > 0, got {spacing_m}")
     return np.array(_unit_hex(int(count)), dtype=np.float64).reshape(-1, 2) * float(spacing_m)
+
+
+def packing_limit_m(count: int, spacing_m: float) -> tuple[float, float]:
+    """``(low, high)`` around the packing limit of ``count`` points ``spacing_m`` apart: both the exact
+    value for ``count <= 8`` (``MIN_DIAMETER_UNIT``); above, :func:`packing_lower_bound_m` and the
+    diameter of :func:`hex_packing`."""
+    if count in MIN_DIAMETER_UNIT:
+        exact = MIN_DIAMETER_UNIT[count] * float(spacing_m)
+        return exact, exact
+    return packing_lower_bound_m(count, spacing_m), diameter(hex_packing(count, spacing_m))
 
 
 def packing_lower_bound_m(count: int, spacing_m: float) -> float:
