@@ -292,6 +292,40 @@ MUTATIONS = [
         ("tests/test_flood.py::test_the_shipped_gnn_meets_small_thresholds_and_fast_robots",),
         regex=True,
     ),
+    Mutation(
+        "agent-drives-the-unfiltered-command",
+        "a robot agent with the safety filter on drives its controller's command, not the filtered one",
+        "robot_agent/agent.py",
+        "wheels = (0.0, 0.0) if brake else wheels_one(u_safe, pose.theta_rad, params)",
+        "wheels = (0.0, 0.0) if brake else wheels_one(u_world, pose.theta_rad, params)",
+        (
+            "tests/test_safety_runtime.py::test_the_pybullet_runtime_filters_in_each_agent_and_counts_contacts",
+        ),
+    ),
+    Mutation(
+        "sense-key-not-in-the-acl",
+        "the access-control rules leave out each robot's own sensor reading (robot/<i>/sense)",
+        "swarm/runtime/acl.py",
+        "heard = [keys.pose(robot), keys.sense(robot), *(keys.msg(j) for j in neighbours)",
+        "heard = [keys.pose(robot), *(keys.msg(j) for j in neighbours)",
+        ("tests/test_acl.py",),
+    ),
+    Mutation(
+        "contacts-counted-a-little-apart",
+        "PyBullet contact points up to 2 cm apart counted as contacts (Bullet keeps such manifold points)",
+        "sim_server/physics.py",
+        "            if point[8] > 0.0:",
+        "            if point[8] > 0.02:",
+        ("tests/test_safety_runtime.py::test_pybullet_counts_the_contacts_of_a_scripted_head_on_collision",),
+    ),
+    Mutation(
+        "pack-flood-restart-keeps-its-tick-count",
+        "the batched pack_flood keeps a restarted robot's tick count (its per-robot form starts over)",
+        "swarm/sim/pack_flood.py",
+        "        self._ticks[fresh] = 0\n",
+        "",
+        ("tests/test_contract.py",),
+    ),
 ]
 
 
