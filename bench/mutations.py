@@ -311,11 +311,11 @@ MUTATIONS = [
         ("tests/test_acl.py",),
     ),
     Mutation(
-        "contacts-counted-a-little-apart",
-        "PyBullet contact points up to 2 cm apart counted as contacts (Bullet keeps such manifold points)",
+        "obstacles-are-ghosts",
+        "PyBullet obstacles collide with nothing (their collision mask empty): robots drive through walls",
         "sim_server/physics.py",
-        "            if point[8] > 0.0:",
-        "            if point[8] > 0.02:",
+        "_MASK_OBSTACLE = GROUP_BODY\n",
+        "_MASK_OBSTACLE = 0\n",
         ("tests/test_safety_runtime.py::test_pybullet_counts_the_contacts_of_a_scripted_head_on_collision",),
     ),
     Mutation(

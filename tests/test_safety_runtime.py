@@ -86,14 +86,24 @@ def test_pybullet_counts_the_contacts_of_a_scripted_head_on_collision():
     radius) meet after (1.2 - 0.24) / 0.6 = 1.6 s. Checked against the geometry of the poses at each
     tick: no contact while the bumpers are 1 cm apart or more, a contact at every tick that ends with
     them pressed together (within 3 mm: pushing, the bodies pitch and their rims touch first). A third
-    robot drives into a wall and touches it only."""
+    robot drives into a wall and touches it only; two more rest 8 mm apart and never count as touching."""
     wall = ObstacleSpec(kind="wall", start=(-1.0, -1.0), end=(1.0, -1.0), thickness_m=0.1)
-    poses = np.array([[-0.6, 0.0, 0.0], [0.6, 0.0, np.pi], [0.0, -0.6, -np.pi / 2]])
+    side = 2 * ROBOT.body_radius_m + 0.008  # robots 3 and 4 rest side by side, bumpers 8 mm apart
+    poses = np.array(
+        [
+            [-0.6, 0.0, 0.0],
+            [0.6, 0.0, np.pi],
+            [0.0, -0.6, -np.pi / 2],
+            [2.0, 1.0, 0.0],
+            [2.0, 1.0 + side, 0.0],
+        ]
+    )
+    wheels = np.array([[0.3, 0.3]] * 3 + [[0.0, 0.0]] * 2)
     gaps, walls, robot_pairs, wall_pairs = [], [], [], []
     with PhysicsWorld(ROBOT, poses, obstacles=(wall.capsule(),), count_contacts=True) as world:
         for _ in range(80):
             before = world.poses()
-            world.set_wheel_speeds(np.full((3, 2), 0.3))
+            world.set_wheel_speeds(wheels)
             world.step(0.05)
             after = world.poses()
             robots, touching = world.take_contacts()
@@ -108,6 +118,7 @@ def test_pybullet_counts_the_contacts_of_a_scripted_head_on_collision():
     assert apart.sum() >= 25 and pressed.sum() >= 25  # both phases happen
     assert all(not robot_pairs[k] for k in np.flatnonzero(apart))
     assert all(robot_pairs[k] == {(0, 1)} for k in np.flatnonzero(pressed))
+    assert not any((3, 4) in pairs for pairs in robot_pairs)  # near is not touching
     wall_apart = np.all(walls_m >= 0.01, axis=1)
     wall_pressed = walls_m[:, 1] <= 0.003
     assert wall_apart.sum() >= 10 and wall_pressed.sum() >= 10
