@@ -311,11 +311,11 @@ MUTATIONS = [
         ("tests/test_acl.py",),
     ),
     Mutation(
-        "obstacles-are-ghosts",
-        "PyBullet obstacles collide with nothing (their collision mask empty): robots drive through walls",
+        "obstacles-not-built",
+        "the PyBullet world leaves out the scenario's obstacles: robots drive through walls",
         "sim_server/physics.py",
-        "_MASK_OBSTACLE = GROUP_BODY\n",
-        "_MASK_OBSTACLE = 0\n",
+        "            for index, capsule in enumerate(obstacles):",
+        "            for index, capsule in enumerate(()):",
         ("tests/test_safety_runtime.py::test_pybullet_counts_the_contacts_of_a_scripted_head_on_collision",),
     ),
     Mutation(
