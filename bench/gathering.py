@@ -17,7 +17,8 @@ within r of the limit), whether it met ``1.3 low`` (N <= 20) or ``1.5 low`` (N =
 met it and held it over the kinematic lower bound of that threshold (``swarm.core.metrics.lower_bound_s``),
 contact ticks and the smallest clearance.
 
-Writes ``gathering.json`` and ``.md`` to ``--out`` (default ``runs/bench/``) or ``bench/results/``.
+Writes ``gathering.json`` and ``.md`` (``gathering_pybullet.*`` for ``--engines pybullet``) to ``--out``
+(default ``runs/bench/``) or ``bench/results/``.
 """
 
 from __future__ import annotations
@@ -117,8 +118,8 @@ def run_cell(scenario: dict, engine: str, work: Path) -> dict:
     return row
 
 
-def write(out: Path, rows: list[dict], command: str) -> None:
-    (out / "gathering.json").write_text(json.dumps({"command": command, "cells": rows}, indent=2) + "\n")
+def write(out: Path, rows: list[dict], command: str, stem: str = "gathering") -> None:
+    (out / f"{stem}.json").write_text(json.dumps({"command": command, "cells": rows}, indent=2) + "\n")
     lines = [
         "# Gathering bodies with the barrier filter",
         "",
@@ -166,7 +167,7 @@ def write(out: Path, rows: list[dict], command: str) -> None:
             f" | {'' if clearance is None else f'{clearance:.3f}'}"
             f" | {'' if infeasible is None else infeasible} |"
         )
-    (out / "gathering.md").write_text("\n".join(lines) + "\n")
+    (out / f"{stem}.md").write_text("\n".join(lines) + "\n")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -197,6 +198,7 @@ def main(argv: list[str] | None = None) -> int:
         if not args.paired or GRAPHS.index(graph) == START_KINDS.index(kind)
     ]
     rows = []
+    stem = "gathering" if args.engines == ["kinematic"] else "gathering_" + "_".join(args.engines)
     with tempfile.TemporaryDirectory(prefix="gathering-") as work:
         for engine, count, kind, graph, controller, filtered in progress(
             jobs, args, desc="cells", unit="cell"
@@ -221,8 +223,8 @@ def main(argv: list[str] | None = None) -> int:
             else:
                 row.update(run_cell(scenario, engine, Path(work)))
             rows.append(row)
-            write(out, rows, command.strip())
-    print(f"{len(rows)} cells: {out / 'gathering.md'}")
+            write(out, rows, command.strip(), stem)
+    print(f"{len(rows)} cells: {out / (stem + '.md')}")
     return (
         0
         if all(math.isfinite(row.get("final_max_pairwise_m") or math.nan) or "reason" in row for row in rows)
