@@ -1,8 +1,10 @@
 """``python -m robot_agent.central``: a centralized controller as ONE process (label: centralized).
 
-``centralized`` (thesis eq. 3.1 on the complete graph) and ``centralized_mec`` (full speed toward
-the minimum enclosing circle's centre of the current positions, ``swarm.core.experts``) need every
-robot's pose at tick k, so they cannot run on board the robots: this single process subscribes to
+``centralized`` (thesis eq. 3.1 on the complete graph), ``centralized_mec`` (full speed toward
+the minimum enclosing circle's centre of the current positions, ``swarm.core.experts``) and the
+formation expert ``capt`` (CAPT assignment of the start, time-synchronized drive to the slots:
+``swarm.sim.formation_controllers.CaptExpert``, the kinematic engine's own) need every robot's pose at
+tick k, so they cannot run on board the robots: this single process subscribes to
 every pose (``swarm/<run>/robot/*/pose``, the one wildcard over robots in the runtime, and the
 reason the controller is not decentralized), waits for all poses of tick k, and publishes every
 robot's wheel command for tick k. It holds the liveliness token of every robot's controller
@@ -214,10 +216,28 @@ class CentralController:
             record["exit_reason"] = "no config from the sim"
             return ExitCode.NOT_MET
         count, gain = config.robot_count, config.gain
-        if config.controller not in ("centralized", "centralized_mec"):
+        if config.controller not in ("centralized", "centralized_mec", "capt"):
             record["exit_reason"] = f"controller {config.controller!r} is not a central controller"
             return ExitCode.NOT_MET
         mec = config.controller == "centralized_mec"
+        capt = None
+        if config.controller == "capt":  # the kinematic engine's expert, one swarm of all the robots
+            from swarm.core import tasks
+            from swarm.sim.controller_kinds import ControllerArgs, batched_controller
+
+            try:
+                args = ControllerArgs(
+                    robot=RobotParams(**config.robot_params),
+                    control_period_s=config.control_period_s,
+                    reverse=bool((config.scenario.get("controller") or {}).get("reverse", True)),
+                    robot_count=count,
+                    task=tasks.parse_section(config.scenario.get("task")),
+                )
+                capt = batched_controller("capt", args)
+                last_poses = np.zeros((count, 3))
+            except ValueError as error:
+                record["exit_reason"] = f"bad controller: {error}"
+                return ExitCode.NOT_MET
         reverse = bool((config.scenario.get("controller") or {}).get("reverse", True))
         record["controller"] = config.controller
         self._step_s = step_s_of(
@@ -261,7 +281,13 @@ class CentralController:
                 robots = sorted(got)
                 record["incomplete_ticks"] += len(robots) < count
                 poses = np.array([got[i].array() for i in robots])
-                if mec:  # centralized_mec: full speed toward the MEC centre of the current positions
+                if capt is not None:  # capt: slots fixed at its first tick; a missing pose is its last one
+                    for row, i in enumerate(robots):
+                        last_poses[i] = poses[row]
+                    full = last_poses[None]
+                    points = controlled_point(full, params.offset_m)
+                    u_world = capt.act(full, points, None, None)[0][0][robots]
+                elif mec:  # centralized_mec: full speed toward the MEC centre of the current positions
                     u_world = centralized_mec_velocity(
                         poses, params.v_max_mps, config.control_period_s, reverse
                     )

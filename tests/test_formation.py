@@ -309,3 +309,31 @@ def test_the_pybullet_formation_is_judged_by_its_slots_under_faults(tmp_path):
         assert metrics["faults"]["scheduled"]
         if expected == 0:  # (the killed robot's body may sit by a slot that a live one takes: a conflict)
             assert metrics["conflicts"] == 0 and metrics["faults"]["messages"]["lost_by_fault"] > 0
+
+
+@pytest.mark.runtime
+def test_the_central_capt_expert_forms_the_circle_on_pybullet(tmp_path):
+    """capt (central: one process hears every pose) on PyBullet fills the 12 slots of the circle, one
+    robot each, judged from the trajectory against slots computed here; its time is no better than the
+    lower bound."""
+    import json
+    import math
+
+    from swarm.cli import main
+
+    scenario = Path(__file__).resolve().parents[1] / "scenarios" / "formation" / "cycle-capt_flood.yaml"
+    out = tmp_path / "capt"
+    code = main(
+        ["run", str(scenario), "--out", str(out), "--quiet", "--engine", "pybullet", "--controller", "capt"]
+    )
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert code == 0, metrics.get("health")
+    assert metrics["controller"] == "capt" and metrics["conflicts"] == 0
+    final = json.loads((out / "trajectory.jsonl").read_text().splitlines()[-1])["poses"]
+    slots = _circle_of_twelve()
+    nearest = [min(range(12), key=lambda k: math.dist(pose[:2], slots[k])) for pose in final]
+    assert sorted(nearest) == list(range(12))
+    assert max(math.dist(pose[:2], slots[k]) for pose, k in zip(final, nearest, strict=True)) <= 0.1
+    assert metrics["ratio_to_lower_bound"] >= 1.0
+    record = json.loads((out / "logs" / "central.json").read_text())
+    assert record["controller"] == "capt" and record["incomplete_ticks"] == 0

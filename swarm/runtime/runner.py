@@ -24,7 +24,7 @@ from swarm.scenarios.results import (
 from swarm.scenarios.safety_results import add_safety_results
 from swarm.scenarios.scenario import Scenario, ScenarioError, engine_warnings
 from swarm.scenarios.task_report import task_pictures
-from swarm.sim.controller_kinds import ControllerArgs, batched_controller, controller_kind
+from swarm.sim.controller_kinds import ControllerArgs, batched_controller
 from swarm.sim.controllers import BatchedController
 from swarm.sim.kinematic import KinematicSim
 from swarm.sim.safety_filter import SafetyFilter
@@ -140,12 +140,6 @@ def run_scenario(
         raise ScenarioError(
             f"task: {scenario.task.kind} runs on the kinematic engine only in this version"
             " (--engine kinematic)"
-        )
-    kind = controller_kind(scenario.controller.kind)
-    if scenario.sim.engine == "pybullet" and kind.central and kind.task != "rendezvous":
-        raise ScenarioError(  # robot_agent.central runs the rendezvous experts only
-            f"controller: {kind.name} (a central {kind.task} controller) runs on the kinematic engine only"
-            " in this version; the decentralized kinds run on the robots' agents (docs/tasks.md)"
         )
     if scenario.sim.engine == "pybullet":
         from swarm.runtime.distributed import run_distributed
