@@ -17,6 +17,23 @@ from swarm.core.robot import RobotParams
 from swarm.core.tasks.formation import FormationSection, capt_assignment
 
 
+def first_memory(count: int, robot_id: int, pose: np.ndarray) -> np.ndarray:
+    """``(N, 3)`` rows ``(known, x, y)`` of the start positions: at first only the robot's own."""
+    memory = np.zeros((count, 3))
+    memory[robot_id] = (1.0, pose[0], pose[1])
+    return memory
+
+
+def merge_starts(memory: np.ndarray, neighbour_messages: np.ndarray) -> np.ndarray:
+    """Unite the heard messages (each ``N x (known, x, y)``) into ``memory`` in place: a start not known
+    yet is taken from the first message that knows it. Returns which starts are known (``(N,)``)."""
+    count = len(memory)
+    for message in np.asarray(neighbour_messages, dtype=np.float64).reshape(-1, count, 3):
+        new = (message[:, 0] != 0.0) & (memory[:, 0] == 0.0)
+        memory[new] = message[new]
+    return memory[:, 0] != 0.0
+
+
 class OnboardCaptFlood:
     """``capt_flood`` for robot ``robot_id``: ``act_one(pose (3,), neighbour_messages (m, 3N), weights)
     -> (u_world (2,), message (3N,))`` (``swarm.sim.onboard``'s protocol)."""
@@ -49,13 +66,9 @@ class OnboardCaptFlood:
     ) -> tuple[np.ndarray, np.ndarray]:
         pose = np.asarray(pose, dtype=np.float64)
         if self._memory is None:
-            self._memory = np.zeros((self.count, 3))
-            self._memory[self.robot_id] = (1.0, pose[0], pose[1])
+            self._memory = first_memory(self.count, self.robot_id, pose)
         memory = self._memory
-        for message in np.asarray(neighbour_messages, dtype=np.float64).reshape(-1, self.count, 3):
-            new = (message[:, 0] != 0.0) & (memory[:, 0] == 0.0)
-            memory[new] = message[new]
-        known = memory[:, 0] != 0.0
+        known = merge_starts(memory, neighbour_messages)
         if not np.array_equal(known, self._known):
             members = np.flatnonzero(known)
             assignment = capt_assignment(memory[members, 1:], self.slots)

@@ -31,6 +31,7 @@ from swarm.core.packing import hex_packing
 from swarm.core.robot import RobotParams
 from swarm.core.tasks.formation import capt_assignment
 from swarm.sim.formation_controllers import CaptFlood
+from swarm.sim.formation_onboard import first_memory, merge_starts
 from swarm.sim.links import Links
 
 SPACING_MARGIN_M = 0.05
@@ -102,13 +103,9 @@ class OnboardPackFlood:
         pose = np.asarray(pose, dtype=np.float64)
         self._ticks += 1
         if self._memory is None:
-            self._memory = np.zeros((self.count, 3))
-            self._memory[self.robot_id] = (1.0, pose[0], pose[1])
+            self._memory = first_memory(self.count, self.robot_id, pose)
         memory = self._memory
-        for message in np.asarray(neighbour_messages, dtype=np.float64).reshape(-1, self.count, 3):
-            new = (message[:, 0] != 0.0) & (memory[:, 0] == 0.0)
-            memory[new] = message[new]
-        known = memory[:, 0] != 0.0
+        known = merge_starts(memory, neighbour_messages)
         ready = bool(known.all()) or self._ticks > self.count
         if ready and not np.array_equal(known, self._known):
             members = np.flatnonzero(known)
