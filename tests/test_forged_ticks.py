@@ -124,7 +124,7 @@ def test_forward_dated_samples_change_nothing_with_and_without_access_control(tm
     assert [records[i]["messages"]["unauthenticated"] for i in range(COUNT)] == [0, 1, 0, 1, 0, 0]
     assert stats["unauthenticated_commands"] == 1 and stats["ticks_missed"] == 0
     rejected = result["metrics"]["runtime"]["rejected"]
-    assert rejected["unauthenticated"] == {"poses": 1, "messages": 2, "commands": 1}
+    assert rejected["unauthenticated"] == {"poses": 1, "messages": 2, "commands": 1, "readings": 0}
     assert rejected["future"] == {"poses": 0, "messages": 0, "commands": 0}
     for i, agent in records.items():  # nobody froze: every agent computed every tick
         assert agent["ticks"] == len(clean) - 1 and agent["messages"]["lost"] == 0, (i, agent)
@@ -159,7 +159,7 @@ def test_forward_dated_samples_signed_with_the_run_key_are_refused_by_their_tick
     assert stats["future_commands"] == 1 and stats["unauthenticated_commands"] == 0
     rejected = result["metrics"]["runtime"]["rejected"]
     assert rejected["future"] == {"poses": 1, "messages": 2, "commands": 1}
-    assert rejected["unauthenticated"] == {"poses": 0, "messages": 0, "commands": 0}
+    assert rejected["unauthenticated"] == {"poses": 0, "messages": 0, "commands": 0, "readings": 0}
 
 
 def test_a_forward_dated_pose_does_not_freeze_the_centralized_controller(tmp_path):
