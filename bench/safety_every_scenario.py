@@ -32,7 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _output import ROOT, add_output_arguments, output_dir, progress
 
 from swarm.core.safety import SafetyParams, min_sensing_radius_m
-from swarm.scenarios.scenario import ScenarioError, parse_scenario
+from swarm.scenarios.scenario import ScenarioError, parse_scenario, resolve_model_path
 
 SCENARIOS = ROOT / "scenarios"
 RUN_TIMEOUT_S = 1800
@@ -58,6 +58,10 @@ def run_one(path: Path, engine: str, work: Path) -> dict:
     row: dict = {"scenario": name, "engine": engine}
     try:
         data = filtered(yaml.safe_load(path.read_text()))
+        model = (data.get("controller") or {}).get("model")
+        if model is not None and not Path(model).is_absolute():  # the copy lives elsewhere
+            resolved = resolve_model_path(model, path)
+            data = {**data, "controller": {**data["controller"], "model": str(resolved.resolve())}}
     except ScenarioError as error:
         return {**row, "exit": 2, "reason": str(error).splitlines()[0]}
     scenario_file = work / f"{name.replace('/', '__')}-{engine}.yaml"
