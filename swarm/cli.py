@@ -7,19 +7,29 @@ interrupted (Ctrl-C, SIGTERM; the partial results of the run are written first).
 
 from __future__ import annotations
 
-import argparse
-import contextlib
-import json
-import shutil
 import sys
-import time
-import uuid
-from pathlib import Path
 
-from swarm.core.exit_codes import ExitCode
+COMMANDS = ("run", "report", "sweep", "evaluate", "train", "collect")
 
 # Nothing heavy at module level (numpy, pydantic, the runtime): ``main`` must be running, and catching
-# Ctrl-C, within milliseconds of the command's start.
+# Ctrl-C, within milliseconds of the command's start. On a loaded machine even these few imports take
+# long enough for a Ctrl-C to land in them: it is one line and exit 130 there too.
+try:
+    import argparse
+    import contextlib
+    import json
+    import shutil
+    import signal
+    import time
+    import uuid
+    from pathlib import Path
+
+    from swarm.core.exit_codes import ExitCode
+except KeyboardInterrupt:  # the command is named as main names it
+    _first = next((word for word in sys.argv[1:] if not word.startswith("-")), "")
+    _command = f"swarm {_first}" if _first in COMMANDS else "swarm"
+    print(f"{_command}: interrupted", file=sys.stderr)
+    raise SystemExit(130) from None
 
 SWEEP_CONTROLLER_NAMES = [
     "local_consensus",
@@ -561,23 +571,50 @@ def _handle(args: argparse.Namespace) -> int:
         raise
 
 
-COMMANDS = ("run", "report", "sweep", "evaluate", "train", "collect")
+class _CtrlC:
+    """While ``main`` runs (main thread, SIGINT not ignored): Ctrl-C raises KeyboardInterrupt as usual
+    and is also remembered, because a library may turn it into another error mid-import (numpy raises
+    ImportError when Ctrl-C lands in its C imports): that error then counts as the interrupt it was."""
+
+    def __init__(self) -> None:
+        self.seen = False
+        self.previous: object = None
+
+    def _handle(self, signum: int, frame: object) -> None:
+        self.seen = True
+        raise KeyboardInterrupt
+
+    def __enter__(self) -> _CtrlC:
+        with contextlib.suppress(ValueError):  # not the main thread: leave the handler alone
+            if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+                self.previous = signal.signal(signal.SIGINT, self._handle)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.previous is not None:
+            signal.signal(signal.SIGINT, self.previous)  # type: ignore[arg-type]
 
 
 def main(argv: list[str] | None = None) -> int:
     given = sys.argv[1:] if argv is None else argv
     first = next((word for word in given if not word.startswith("-")), None)
     command = f"swarm {first}" if first in COMMANDS else "swarm"  # before argparse has read it
-    try:  # everything, imports included: Ctrl-C at any moment is one line and 130, never a traceback
-        from swarm.runtime.usage import configure_logging
+    with _CtrlC() as ctrl_c:
+        try:  # everything, imports included: Ctrl-C at any moment is one line and 130, never a traceback
+            from swarm.runtime.usage import configure_logging
 
-        args = build_parser().parse_args(argv)
-        command = f"swarm {args.command}"
-        configure_logging(-1 if args.quiet else args.verbose)
-        return _handle(args)
-    except KeyboardInterrupt:
-        print(f"{command}: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+            args = build_parser().parse_args(argv)
+            command = f"swarm {args.command}"
+            configure_logging(-1 if args.quiet else args.verbose)
+            return _handle(args)
+        except KeyboardInterrupt:
+            print(f"{command}: interrupted", file=sys.stderr)
+            return EXIT_INTERRUPTED
+        except Exception:
+            if ctrl_c.seen:  # a Ctrl-C that a library turned into another error
+                print(f"{command}: interrupted", file=sys.stderr)
+                return EXIT_INTERRUPTED
+            raise
 
 
 if __name__ == "__main__":

@@ -21,6 +21,12 @@ SCENARIO = PROJECT_ROOT / "scenarios" / "thesis" / "cycle-local_consensus.yaml"
 SWARM = str(Path(sysconfig.get_path("scripts")) / "swarm")
 
 
+def default_sigint() -> None:
+    """In the child: SIGINT's default action. A suite started in the background (``cmd &``) ignores
+    SIGINT, and an ignored signal is inherited: a Ctrl-C test would see nothing happen."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def start(out: Path) -> subprocess.Popen:
     return subprocess.Popen(
         [SWARM, "run", str(SCENARIO), "--out", str(out), "--quiet"],
@@ -28,6 +34,7 @@ def start(out: Path) -> subprocess.Popen:
         stderr=subprocess.PIPE,
         text=True,
         cwd=PROJECT_ROOT,
+        preexec_fn=default_sigint,  # SIGINT as from a terminal, even when the suite runs in the background
     )
 
 
@@ -66,6 +73,7 @@ def test_ctrl_c_during_the_imports_is_one_line_and_130(tmp_path, after_s):
         stderr=subprocess.PIPE,
         text=True,
         cwd=PROJECT_ROOT,
+        preexec_fn=default_sigint,  # SIGINT as from a terminal, even when the suite runs in the background
     )
     assert process.stdout is not None and process.stdout.readline() == "up\n"
     time.sleep(after_s)

@@ -20,6 +20,12 @@ SCENARIO = PROJECT_ROOT / "scenarios" / "thesis" / "cycle-local_consensus.yaml"
 SWARM = str(Path(sysconfig.get_path("scripts")) / "swarm")
 
 
+def default_sigint() -> None:
+    """In the child: SIGINT's default action (a suite run in the background ignores it, and an ignored
+    signal is inherited: tests/test_interrupt_startup.py)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def metrics(out: Path) -> dict:
     return json.loads((out / "metrics.json").read_text())
 
@@ -46,6 +52,7 @@ def test_an_interrupted_run_has_the_blocks_from_the_processes_files(tmp_path):
         stderr=subprocess.PIPE,
         text=True,
         cwd=PROJECT_ROOT,
+        preexec_fn=default_sigint,  # SIGINT as from a terminal, even when the suite runs in the background
     )
     trajectory, deadline = out / "trajectory.jsonl", time.monotonic() + 120
     while not (trajectory.is_file() and trajectory.read_text().count("\n") > 20):
