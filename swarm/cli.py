@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import sys
 
+from swarm.core.exit_codes import ExitCode  # the standard library's enum only: first, and quick
+
 COMMANDS = ("run", "report", "sweep", "evaluate", "train", "collect")
 
 # Nothing heavy at module level (numpy, pydantic, the runtime): ``main`` must be running, and catching
@@ -23,13 +25,11 @@ try:
     import time
     import uuid
     from pathlib import Path
-
-    from swarm.core.exit_codes import ExitCode
 except KeyboardInterrupt:  # the command is named as main names it
     _first = next((word for word in sys.argv[1:] if not word.startswith("-")), "")
     _command = f"swarm {_first}" if _first in COMMANDS else "swarm"
     print(f"{_command}: interrupted", file=sys.stderr)
-    raise SystemExit(130) from None
+    raise SystemExit(ExitCode.INTERRUPTED) from None
 
 SWEEP_CONTROLLER_NAMES = [
     "local_consensus",
