@@ -205,3 +205,35 @@ def test_report_recomputes_contacts_and_keeps_the_filter_counts(tmp_path):
     assert again["contacts"] == {"robot_robot": 3, "robot_obstacle": 0, "ticks": 3}
     assert again["min_clearance_m"] == pytest.approx(0.1 - 2 * ROBOT.body_radius_m)
     assert again["safety_filter"] == written["safety_filter"]
+
+
+def test_a_run_with_bodies_to_keep_apart_plots_their_clearance(tmp_path):
+    """clearance.png for a run with the filter and an obstacle, none for the plain run; its curves are
+    the gaps of the trajectory, computed here from the poses (bumper radius r, a disc of 0.2 m at
+    (0, 2)), and their least is metrics.json's min_clearance_m."""
+    from swarm.scenarios.results import read_trajectory
+
+    safe = parse_scenario(
+        {
+            **SCENARIO,
+            "safety": {"kind": "barrier"},
+            "obstacles": [{"kind": "disc", "centre": [0.0, 2.0], "radius_m": 0.2}],
+        }
+    )
+    run_scenario(safe, tmp_path / "safe", progress=False)
+    run_scenario(parse_scenario(SCENARIO), tmp_path / "plain", progress=False)
+    assert not (tmp_path / "plain" / "clearance.png").exists()
+    assert (tmp_path / "safe" / "clearance.png").is_file()
+    lines = {
+        line["gid"]: line for line in json.loads((tmp_path / "safe" / "clearance.json").read_text())["lines"]
+    }
+    _, poses, _ = read_trajectory(tmp_path / "safe" / "trajectory.jsonl")
+    r = ROBOT.body_radius_m
+    centres = poses[..., :2]
+    pair = np.linalg.norm(centres[:, :, None] - centres[:, None], axis=-1) + np.eye(centres.shape[1]) * 1e9
+    np.testing.assert_allclose(lines["robot_robot"]["y"], pair.min(axis=(1, 2)) - 2 * r, atol=1e-6)
+    disc = np.linalg.norm(centres - np.array([0.0, 2.0]), axis=-1) - 0.2 - r
+    np.testing.assert_allclose(lines["robot_obstacle"]["y"], disc.min(axis=1), atol=1e-6)
+    metrics = json.loads((tmp_path / "safe" / "metrics.json").read_text())
+    least = min(min(lines["robot_robot"]["y"]), min(lines["robot_obstacle"]["y"]))
+    assert least == pytest.approx(metrics["min_clearance_m"], abs=1e-6)

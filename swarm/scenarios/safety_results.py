@@ -37,6 +37,61 @@ def contact_results(poses: np.ndarray, body_radius_m: float, obstacles: Capsules
     }
 
 
+def clearance_series(
+    poses: np.ndarray, body_radius_m: float, obstacles: Capsules
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """Per tick of ``poses (T, N, 3)``: the smallest bumper gap between two robots ``(T,)`` (inf for
+    one robot) and the smallest gap to an obstacle ``(T,)`` (None without obstacles); as
+    :func:`contact_results` measures them."""
+    centres = poses[..., :2]
+    count = centres.shape[1]
+    upper = np.triu_indices(count, k=1)
+    robots, walls = [], []
+    for start in range(0, len(centres), 256):
+        chunk = centres[start : start + 256]
+        gaps = np.linalg.norm(chunk[:, :, None] - chunk[:, None], axis=-1)[:, upper[0], upper[1]]
+        robots.append((gaps - 2.0 * body_radius_m).min(axis=1, initial=np.inf))
+        if len(obstacles):
+            walls.append(
+                (obstacles.surface_distance(chunk).reshape(len(chunk), -1) - body_radius_m).min(axis=1)
+            )
+    return np.concatenate(robots), np.concatenate(walls) if walls else None
+
+
+def clearance_plot(
+    path, times_s: np.ndarray, poses: np.ndarray, body_radius_m: float, obstacles: Capsules
+) -> None:
+    """``clearance.png`` (+ ``.json``, ``swarm.scenarios.report.plot_data``): the smallest gap between
+    two bodies, and between a body and an obstacle, over time, with the contact line at 0."""
+    import json
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from swarm.scenarios.report import plot_data
+
+    robots, walls = clearance_series(poses, body_radius_m, obstacles)
+    fig, ax = plt.subplots(figsize=(7.5, 3.5), dpi=110)
+    if np.all(np.isfinite(robots)):
+        (line,) = ax.plot(times_s, robots, color="black", lw=1.6, label="robot-robot")
+        line.set_gid("robot_robot")
+    if walls is not None:
+        (line,) = ax.plot(times_s, walls, color="tab:brown", lw=1.6, label="robot-obstacle")
+        line.set_gid("robot_obstacle")
+    (zero,) = ax.plot([times_s[0], times_s[-1]], [0.0, 0.0], color="red", lw=1, ls="--", label="contact")
+    zero.set_gid("contact")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("smallest gap (m)")
+    ax.set_title("Clearance between bodies")
+    ax.legend(loc="upper right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path)
+    path.with_suffix(".json").write_text(json.dumps(plot_data(ax)))
+    plt.close(fig)
+
+
 def add_safety_results(
     outcome: dict, poses: np.ndarray, body_radius_m: float, obstacles: Capsules, filter_counts: dict | None
 ) -> dict:

@@ -17,9 +17,21 @@ from swarm.scenarios.scenario import Scenario
 def task_pictures(
     out_dir: Path, scenario: Scenario, times_s: np.ndarray, poses: np.ndarray, outcome: dict
 ) -> None:
-    """The pictures the task's entry names (``module:function``)."""
+    """The pictures the task's entry names (``module:function``), and ``clearance.png`` for a scenario
+    with a safety filter or obstacles."""
     module, _, function = tasks.get(scenario.task.kind).plot.partition(":")
     getattr(importlib.import_module(module), function)(out_dir, scenario, times_s, poses, outcome)
+    if scenario.safety is not None or scenario.obstacles:  # bodies that must keep apart: their gaps
+        from swarm.core.obstacles import Capsules
+        from swarm.scenarios.safety_results import clearance_plot
+
+        clearance_plot(
+            out_dir / "clearance.png",
+            times_s,
+            poses,
+            scenario.robot.body_radius_m,
+            Capsules(scenario.obstacles),
+        )
 
 
 def formation_pictures(
