@@ -15,18 +15,24 @@ import numpy as np
 from swarm.core.obstacles import Capsules
 
 
-def contact_results(poses: np.ndarray, body_radius_m: float, obstacles: Capsules) -> dict:
-    """``{"contacts": {...}, "min_clearance_m": ...}`` of a trajectory ``poses (T, N, 3)``."""
+def _gaps(poses: np.ndarray, body_radius_m: float, obstacles: Capsules):
+    """Chunks of ticks of ``poses (T, N, 3)`` (bounded memory on long runs of many robots): per chunk,
+    the bumper gaps of every robot pair ``(C, N (N - 1) / 2)`` and of every robot to every obstacle
+    ``(C, N K)``, negative for an overlap."""
     centres = poses[..., :2]
-    count = centres.shape[1]
-    upper = np.triu_indices(count, k=1)
-    robot_robot = robot_obstacle = ticks = 0
-    clearance = np.inf
-    for start in range(0, len(centres), 256):  # bounded memory on long runs of many robots
+    upper = np.triu_indices(centres.shape[1], k=1)
+    for start in range(0, len(centres), 256):
         chunk = centres[start : start + 256]
         gaps = np.linalg.norm(chunk[:, :, None] - chunk[:, None], axis=-1)[:, upper[0], upper[1]]
-        gaps = gaps - 2.0 * body_radius_m
         walls = obstacles.surface_distance(chunk).reshape(len(chunk), -1) - body_radius_m
+        yield gaps - 2.0 * body_radius_m, walls
+
+
+def contact_results(poses: np.ndarray, body_radius_m: float, obstacles: Capsules) -> dict:
+    """``{"contacts": {...}, "min_clearance_m": ...}`` of a trajectory ``poses (T, N, 3)``."""
+    robot_robot = robot_obstacle = ticks = 0
+    clearance = np.inf
+    for gaps, walls in _gaps(poses, body_radius_m, obstacles):
         robot_robot += int(np.count_nonzero(gaps < 0))
         robot_obstacle += int(np.count_nonzero(walls < 0))
         ticks += int(np.count_nonzero(np.any(gaps < 0, axis=1) | np.any(walls < 0, axis=1)))
@@ -43,19 +49,11 @@ def clearance_series(
     """Per tick of ``poses (T, N, 3)``: the smallest bumper gap between two robots ``(T,)`` (inf for
     one robot) and the smallest gap to an obstacle ``(T,)`` (None without obstacles); as
     :func:`contact_results` measures them."""
-    centres = poses[..., :2]
-    count = centres.shape[1]
-    upper = np.triu_indices(count, k=1)
     robots, walls = [], []
-    for start in range(0, len(centres), 256):
-        chunk = centres[start : start + 256]
-        gaps = np.linalg.norm(chunk[:, :, None] - chunk[:, None], axis=-1)[:, upper[0], upper[1]]
-        robots.append((gaps - 2.0 * body_radius_m).min(axis=1, initial=np.inf))
-        if len(obstacles):
-            walls.append(
-                (obstacles.surface_distance(chunk).reshape(len(chunk), -1) - body_radius_m).min(axis=1)
-            )
-    return np.concatenate(robots), np.concatenate(walls) if walls else None
+    for gaps, wall_gaps in _gaps(poses, body_radius_m, obstacles):
+        robots.append(gaps.min(axis=1, initial=np.inf))
+        walls.append(wall_gaps.min(axis=1, initial=np.inf))
+    return np.concatenate(robots), np.concatenate(walls) if len(obstacles) else None
 
 
 def clearance_plot(
