@@ -198,22 +198,49 @@ class CommandSink:
         self.publisher.undeclare()
 
 
+SENSE_COUNTS = ("received", "invalid", "unauthenticated", "missing", "interventions", "infeasible")
+"""What a robot's safety filter counts (the record's ``safety_filter``): sensor readings received,
+invalid and unauthenticated, ticks without a reading (braked), commands the filter changed, and ticks
+it found no safe command (braked)."""
+
+
+def filter_step(
+    reading: wire.Sensing | None,
+    u_world,
+    theta_rad: float,
+    robot: RobotParams,
+    params: safety.SafetyParams,
+    counts: dict[str, int],
+) -> tuple[tuple[float, float], bool]:
+    """One robot's command through its barrier filter with its own reading (``safety.filter_reading``),
+    counted in ``counts``: the safe world command and whether the robot must brake (no reading, or no
+    safe command)."""
+    if reading is None:
+        counts["missing"] += 1
+        return (0.0, 0.0), True
+    safe, status = safety.filter_reading(
+        np.asarray(u_world, dtype=np.float64), theta_rad, reading.bodies, reading.obstacles, robot, params
+    )
+    if status == safety.CHANGED:
+        counts["interventions"] += 1
+    elif status == safety.INFEASIBLE:
+        counts["infeasible"] += 1
+        return (0.0, 0.0), True
+    return (float(safe[0]), float(safe[1])), False
+
+
 class SenseReader:
     """The robot's own range-sensor readings (``swarm/<run>/robot/<i>/sense``, scenarios with
-    ``safety``) and its safety filter (``swarm.core.safety.filter_reading``) on the controller's command.
+    ``safety``) and its safety filter (:func:`filter_step`) on the controller's command.
 
     The reading of tick k goes out just before pose k, so it is normally in when the pose is; lockstep
     waits for it up to the neighbour deadline. A tick without its reading (lost, late, forged) brakes
-    the robot (``missing``): driving blind is not safe. Counts (the record's ``safety_filter``): readings
-    ``received``, ``invalid``, ``unauthenticated``, ``missing``, and the filter's ``interventions``
-    (commands changed) and ``infeasible`` (no safe command: braked)."""
+    the robot (``missing``): driving blind is not safe. Counts: :data:`SENSE_COUNTS`."""
 
     def __init__(self, inlet: Inlet, key: str, params: safety.SafetyParams, robot: RobotParams):
         self.inlet, self.key, self.params, self.robot = inlet, key, params, robot
         self.readings: dict[int, wire.Sensing] = {}
-        self.counts = dict.fromkeys(
-            ("received", "invalid", "unauthenticated", "missing", "interventions", "infeasible"), 0
-        )
+        self.counts = dict.fromkeys(SENSE_COUNTS, 0)
 
     def drain(self, tick: int, run_key: wire.RunKey | None) -> bool:
         """Take what is queued; whether the reading of ``tick`` is in."""
@@ -234,26 +261,9 @@ class SenseReader:
             del readings[old]
         return tick in readings
 
-    def filtered(self, tick: int, u_world, theta_rad: float) -> tuple[Any, bool]:
+    def filtered(self, tick: int, u_world, theta_rad: float) -> tuple[tuple[float, float], bool]:
         """The safe command of this tick, and whether the robot must brake (no reading, infeasible)."""
-        reading = self.readings.get(tick)
-        if reading is None:
-            self.counts["missing"] += 1
-            return (0.0, 0.0), True
-        safe, status = safety.filter_reading(
-            np.asarray(u_world, dtype=np.float64),
-            theta_rad,
-            reading.bodies,
-            reading.obstacles,
-            self.robot,
-            self.params,
-        )
-        if status == safety.CHANGED:
-            self.counts["interventions"] += 1
-        elif status == safety.INFEASIBLE:
-            self.counts["infeasible"] += 1
-            return (0.0, 0.0), True
-        return (float(safe[0]), float(safe[1])), False
+        return filter_step(self.readings.get(tick), u_world, theta_rad, self.robot, self.params, self.counts)
 
 
 @dataclass

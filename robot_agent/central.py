@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
+from robot_agent.agent import SENSE_COUNTS, filter_step
 from swarm.core import safety
 from swarm.core.exit_codes import ExitCode
 from swarm.core.experts import centralized_mec_velocity, complete_consensus_velocity
@@ -55,9 +56,7 @@ class CentralController:
         self._poses: dict[int, dict[int, wire.Pose]] = {}  # tick -> robot -> pose
         self._readings: dict[int, dict[int, wire.Sensing]] = {}  # tick -> robot -> sensor reading
         self._safety_on = False
-        self.filter_counts = dict.fromkeys(
-            ("received", "invalid", "unauthenticated", "missing", "interventions", "infeasible"), 0
-        )
+        self.filter_counts = dict.fromkeys(SENSE_COUNTS, 0)
         self._last_tick = -1  # the newest tick computed
         self._last_tick_at_s = 0.0  # when it was taken
         self._step_s = 1.0  # swarm.runtime.ticks eq. (1), from the config once fetched
@@ -150,18 +149,11 @@ class CentralController:
             readings = self._readings.pop(tick, {})
             for old in [k for k in self._readings if k <= tick]:
                 del self._readings[old]
-        counts, out = self.filter_counts, u_world.copy()
-        for row, i in enumerate(robots):
-            reading = readings.get(i)
-            if reading is None:
-                counts["missing"] += 1
-                out[row] = 0.0
-                continue
-            out[row], status = safety.filter_reading(
-                u_world[row], poses[row, 2], reading.bodies, reading.obstacles, params, safe_params
+        out = u_world.copy()
+        for row, i in enumerate(robots):  # as each robot's own agent filters (robot_agent.agent)
+            out[row], _ = filter_step(
+                readings.get(i), u_world[row], poses[row, 2], params, safe_params, self.filter_counts
             )
-            counts["interventions"] += status == safety.CHANGED
-            counts["infeasible"] += status == safety.INFEASIBLE
         return out
 
     def _wait(self, ready, until_s: float) -> bool:
@@ -220,30 +212,28 @@ class CentralController:
             record["exit_reason"] = f"controller {config.controller!r} is not a central controller"
             return ExitCode.NOT_MET
         mec = config.controller == "centralized_mec"
+        spec = config.scenario.get("controller") or {}
+        reverse = bool(spec.get("reverse", True))
+        record["controller"] = config.controller
+        self._step_s = step_s_of(
+            {"control_period_s": config.control_period_s, **config.scenario.get("sim", {})}
+        )
+        params = RobotParams(**config.robot_params)
         capt = None
         if config.controller == "capt":  # the kinematic engine's expert, one swarm of all the robots
             from swarm.core import tasks
             from swarm.sim.controller_kinds import ControllerArgs, batched_controller
 
             try:
-                args = ControllerArgs(
-                    robot=RobotParams(**config.robot_params),
-                    control_period_s=config.control_period_s,
-                    reverse=bool((config.scenario.get("controller") or {}).get("reverse", True)),
-                    robot_count=count,
-                    task=tasks.parse_section(config.scenario.get("task")),
+                task = tasks.parse_section(config.scenario.get("task"))
+                args = ControllerArgs.from_spec(
+                    spec, params, config.control_period_s, robot_count=count, task=task
                 )
                 capt = batched_controller("capt", args)
                 last_poses = np.zeros((count, 3))
             except ValueError as error:
                 record["exit_reason"] = f"bad controller: {error}"
                 return ExitCode.NOT_MET
-        reverse = bool((config.scenario.get("controller") or {}).get("reverse", True))
-        record["controller"] = config.controller
-        self._step_s = step_s_of(
-            {"control_period_s": config.control_period_s, **config.scenario.get("sim", {})}
-        )
-        params = RobotParams(**config.robot_params)
         entities.append(session.declare_subscriber(keys.all_poses, guard(self._on_pose)))
         record["subscriptions"].append(keys.all_poses)
         safe_params = None
