@@ -198,10 +198,17 @@ class CommandSink:
         self.publisher.undeclare()
 
 
-SENSE_COUNTS = ("received", "invalid", "unauthenticated", "missing", "interventions", "infeasible")
-"""What a robot's safety filter counts (the record's ``safety_filter``): sensor readings received,
-invalid and unauthenticated, ticks without a reading (braked), commands the filter changed, and ticks
-it found no safe command (braked)."""
+def take_reading(
+    key: str, payload: bytes, tag: bytes | None, run_key: wire.RunKey | None, counts: dict[str, int]
+) -> wire.Sensing | None:
+    """A sensor reading that came on ``key``, if its tag is the run's and it decodes (counted in
+    ``counts``: received, unauthenticated, invalid); None otherwise."""
+    if run_key is not None and not run_key.check(key, payload, tag):
+        counts["unauthenticated"] += 1
+        return None
+    reading = wire.decode_sensing(payload)
+    counts["invalid" if reading is None else "received"] += 1
+    return reading
 
 
 def filter_step(
@@ -235,27 +242,19 @@ class SenseReader:
 
     The reading of tick k goes out just before pose k, so it is normally in when the pose is; lockstep
     waits for it up to the neighbour deadline. A tick without its reading (lost, late, forged) brakes
-    the robot (``missing``): driving blind is not safe. Counts: :data:`SENSE_COUNTS`."""
+    the robot (``missing``): driving blind is not safe. Counts: ``swarm.core.safety.FILTER_COUNTS``."""
 
     def __init__(self, inlet: Inlet, key: str, params: safety.SafetyParams, robot: RobotParams):
         self.inlet, self.key, self.params, self.robot = inlet, key, params, robot
         self.readings: dict[int, wire.Sensing] = {}
-        self.counts = dict.fromkeys(SENSE_COUNTS, 0)
+        self.counts = dict.fromkeys(safety.FILTER_COUNTS, 0)
 
     def drain(self, tick: int, run_key: wire.RunKey | None) -> bool:
         """Take what is queued; whether the reading of ``tick`` is in."""
         counts, readings = self.counts, self.readings
         while (taken := self.inlet.take()) is not None:
-            payload, tag = taken
-            if run_key is not None and not run_key.check(self.key, payload, tag):
-                counts["unauthenticated"] += 1
-                continue
-            reading = wire.decode_sensing(payload)
-            if reading is None:
-                counts["invalid"] += 1
-                continue
-            counts["received"] += 1
-            if reading.tick >= tick:  # an older one can no longer be used
+            reading = take_reading(self.key, *taken, run_key, counts)
+            if reading is not None and reading.tick >= tick:  # an older one can no longer be used
                 readings[reading.tick] = reading
         for old in [k for k in readings if k < tick]:
             del readings[old]

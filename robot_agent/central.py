@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from robot_agent.agent import SENSE_COUNTS, filter_step
+from robot_agent.agent import filter_step, take_reading
 from swarm.core import safety
 from swarm.core.exit_codes import ExitCode
 from swarm.core.experts import centralized_mec_velocity, complete_consensus_velocity
@@ -56,7 +56,7 @@ class CentralController:
         self._poses: dict[int, dict[int, wire.Pose]] = {}  # tick -> robot -> pose
         self._readings: dict[int, dict[int, wire.Sensing]] = {}  # tick -> robot -> sensor reading
         self._safety_on = False
-        self.filter_counts = dict.fromkeys(SENSE_COUNTS, 0)
+        self.filter_counts = dict.fromkeys(safety.FILTER_COUNTS, 0)
         self._last_tick = -1  # the newest tick computed
         self._last_tick_at_s = 0.0  # when it was taken
         self._step_s = 1.0  # swarm.runtime.ticks eq. (1), from the config once fetched
@@ -120,20 +120,14 @@ class CentralController:
     def _on_sense(self, sample: zenoh.Sample) -> None:
         key_expr = str(sample.key_expr)
         robot = self.keys.robot_of(key_expr, "sense")
-        payload = sample.payload.to_bytes()
-        run_key, counts = self._run_key, self.filter_counts
-        if run_key is not None and not run_key.check(key_expr, payload, wire.attachment_of(sample)):
-            with self._cond:
-                counts["unauthenticated"] += 1
-            return
-        reading = wire.decode_sensing(payload)
+        payload, tag = sample.payload.to_bytes(), wire.attachment_of(sample)
         with self._cond:
-            if reading is None or robot is None:
-                counts["invalid"] += 1
+            if robot is None:  # not a robot's key of this run
+                self.filter_counts["invalid"] += 1
                 return
-            counts["received"] += 1
-            if reading.tick >= self._last_tick:  # the tick being computed may still wait for it
-                self._readings.setdefault(reading.tick, {})[robot] = reading
+            reading = take_reading(key_expr, payload, tag, self._run_key, self.filter_counts)
+            if reading is not None and reading.tick >= self._last_tick:
+                self._readings.setdefault(reading.tick, {})[robot] = reading  # may still be waited for
                 self._cond.notify_all()
 
     def _filtered(

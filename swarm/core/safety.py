@@ -47,6 +47,11 @@ from swarm.core.robot import RobotParams, rotate, world_to_local
 UNCHANGED, CHANGED, INFEASIBLE = 0, 1, 2
 """What the filter did to a command: nothing, changed it, or found no feasible one and braked."""
 
+FILTER_COUNTS = ("received", "invalid", "unauthenticated", "missing", "interventions", "infeasible")
+"""What a robot's filter counts in the runtime (an agent's record, ``safety_filter``): sensor readings
+received, invalid and unauthenticated, ticks without a reading (braked), commands it changed, and ticks
+it found no safe command (braked)."""
+
 FEASIBILITY_TOLERANCE = 1e-9
 """A candidate is feasible when every normalised constraint ``a_k . u - b_k`` (m/s) is at most this."""
 

@@ -521,7 +521,7 @@ def body_results(scenario: Scenario, stats: dict, records: list[dict], poses: np
     contacts = stats.get("contacts")
     filter_counts = None
     if scenario.safety is not None:
-        filter_counts = dict.fromkeys(
+        filter_counts = dict.fromkeys(  # what the robots' filters did (their readings received: not here)
             ("interventions", "infeasible", "missing", "invalid", "unauthenticated"), 0
         )
         for record in records:
