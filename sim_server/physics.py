@@ -177,7 +177,8 @@ class PhysicsWorld:
                 for body in self._make_obstacle(capsule, cid):
                     self._obstacle_of_body[body] = index
             self.count_contacts = bool(count_contacts)
-            self._touching: set[tuple[str, int, int]] = set()  # since the last take_contacts
+            self._robots_touching: set[tuple[int, int]] = set()  # since the last take_contacts
+            self._walls_touching: set[tuple[int, int]] = set()
             self._joints = [0, 1]  # left, right: the URDF's joint order
             self._forces = [self.wheel_force_limit_nm, self.wheel_force_limit_nm]
             # Body-frame offset of the base link's centre of mass (getBasePositionAndOrientation
@@ -341,25 +342,25 @@ class PhysicsWorld:
     def _note_contacts(self) -> None:
         """Add the robot-robot and robot-obstacle pairs touching now (a contact point at distance <= 0:
         Bullet's manifolds also keep points a little apart, which are no contact)."""
-        robot_of, obstacle_of, touching = self._robot_of_body, self._obstacle_of_body, self._touching
+        robot_of, obstacle_of = self._robot_of_body, self._obstacle_of_body
+        robots, walls = self._robots_touching, self._walls_touching
         for point in pb.getContactPoints(physicsClientId=self._cid):
             if point[8] > 0.0:
                 continue
             a, b = point[1], point[2]
             if a in robot_of and b in robot_of:
                 i, j = sorted((robot_of[a], robot_of[b]))
-                touching.add(("robot_robot", i, j))
+                robots.add((i, j))
             elif a in robot_of and b in obstacle_of:
-                touching.add(("robot_obstacle", robot_of[a], obstacle_of[b]))
+                walls.add((robot_of[a], obstacle_of[b]))
             elif b in robot_of and a in obstacle_of:
-                touching.add(("robot_obstacle", robot_of[b], obstacle_of[a]))
+                walls.add((robot_of[b], obstacle_of[a]))
 
     def take_contacts(self) -> tuple[set[tuple[int, int]], set[tuple[int, int]]]:
         """The pairs that touched at any substep since the last call (``count_contacts``): robot pairs
         ``(i, j)`` with ``i < j``, and ``(robot, obstacle)`` pairs; then forgets them."""
-        touching, self._touching = self._touching, set()
-        robots = {(i, j) for kind, i, j in touching if kind == "robot_robot"}
-        walls = {(i, j) for kind, i, j in touching if kind == "robot_obstacle"}
+        robots, walls = self._robots_touching, self._walls_touching
+        self._robots_touching, self._walls_touching = set(), set()
         return robots, walls
 
     def _read_base_states(self) -> np.ndarray:
