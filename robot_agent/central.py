@@ -2,8 +2,10 @@
 
 ``centralized`` (thesis eq. 3.1 on the complete graph), ``centralized_mec`` (full speed toward
 the minimum enclosing circle's centre of the current positions, ``swarm.core.experts``) and the
-formation expert ``capt`` (CAPT assignment of the start, time-synchronized drive to the slots:
-``swarm.sim.formation_controllers.CaptExpert``, the kinematic engine's own) need every robot's pose at
+experts of the other tasks (every central kind of ``swarm.sim.controller_kinds`` whose task is not
+rendezvous, run as the kinematic engine's own batched form on one swarm: the formation expert ``capt``,
+CAPT assignment of the start and time-synchronized drive to the slots; the coverage expert ``lloyd``,
+every robot to its Voronoi cell's centroid) need every robot's pose at
 tick k, so they cannot run on board the robots: this single process subscribes to
 every pose (``swarm/<run>/robot/*/pose``, the one wildcard over robots in the runtime, and the
 reason the controller is not decentralized), waits for all poses of tick k, and publishes every
@@ -202,7 +204,10 @@ class CentralController:
             record["exit_reason"] = "no config from the sim"
             return ExitCode.NOT_MET
         count, gain = config.robot_count, config.gain
-        if config.controller not in ("centralized", "centralized_mec", "capt"):
+        from swarm.sim.controller_kinds import CONTROLLER_KINDS
+
+        kind = CONTROLLER_KINDS.get(config.controller)
+        if kind is None or not kind.central:
             record["exit_reason"] = f"controller {config.controller!r} is not a central controller"
             return ExitCode.NOT_MET
         mec = config.controller == "centralized_mec"
@@ -213,8 +218,8 @@ class CentralController:
             {"control_period_s": config.control_period_s, **config.scenario.get("sim", {})}
         )
         params = RobotParams(**config.robot_params)
-        capt = None
-        if config.controller == "capt":  # the kinematic engine's expert, one swarm of all the robots
+        expert = None  # another task's expert (capt, lloyd): the kinematic engine's, on one swarm of all
+        if kind.task != "rendezvous":
             from swarm.core import tasks
             from swarm.sim.controller_kinds import ControllerArgs, batched_controller
 
@@ -223,7 +228,7 @@ class CentralController:
                 args = ControllerArgs.from_spec(
                     spec, params, config.control_period_s, robot_count=count, task=task
                 )
-                capt = batched_controller("capt", args)
+                expert = batched_controller(config.controller, args)
                 last_poses = np.zeros((count, 3))
             except ValueError as error:
                 record["exit_reason"] = f"bad controller: {error}"
@@ -265,12 +270,12 @@ class CentralController:
                 robots = sorted(got)
                 record["incomplete_ticks"] += len(robots) < count
                 poses = np.array([got[i].array() for i in robots])
-                if capt is not None:  # capt: slots fixed at its first tick; a missing pose is its last one
+                if expert is not None:  # capt fixes its slots at its first tick; a missing pose: its last
                     for row, i in enumerate(robots):
                         last_poses[i] = poses[row]
                     full = last_poses[None]
                     points = controlled_point(full, params.offset_m)
-                    u_world = capt.act(full, points, None, None)[0][0][robots]
+                    u_world = expert.act(full, points, None, None)[0][0][robots]
                 elif mec:  # centralized_mec: full speed toward the MEC centre of the current positions
                     u_world = centralized_mec_velocity(
                         poses, params.v_max_mps, config.control_period_s, reverse

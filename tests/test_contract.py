@@ -103,6 +103,13 @@ TASK_SECTIONS = {  # what a task's kinds are run on: one section per task
     "formation": tasks.parse_section(  # a circle where the far starts are: the disk graph changes on the way
         {"kind": "formation", "slots": {"circle": {"radius_m": 1.0, "centre": FAR_M.tolist()}}}
     ),
+    "coverage": tasks.parse_section(  # a 4 m square around the far starts, a Gaussian in one corner
+        {
+            "kind": "coverage",
+            "region": (FAR_M + np.array([[-2.0, -2.0], [2.0, -2.0], [2.0, 2.0], [-2.0, 2.0]])).tolist(),
+            "gaussians": [{"mean": (FAR_M + 1.0).tolist(), "sigma_m": 0.8}],
+        }
+    ),
 }
 
 

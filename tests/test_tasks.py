@@ -15,6 +15,7 @@ BASE = {"name": "t", "robots": {"count": 6}, "topology": {"kind": "cycle"}, "sim
 SECTIONS = {
     "rendezvous": {"kind": "rendezvous"},
     "formation": {"kind": "formation", "slots": {"circle": {"radius_m": 1.0}}},
+    "coverage": {"kind": "coverage", "region": [[-2, -2], [2, -2], [2, 2], [-2, 2]]},
 }
 
 
@@ -40,9 +41,12 @@ def test_every_task_names_what_a_run_needs(name):
     for kind in task.experts:
         assert CONTROLLER_KINDS[kind].central, f"{kind}: an expert of {name} is centralized"
     assert task.bound in ("lower_bound", "reference")
-    assert task.bound_s is not None and task.bound_s.__doc__, (
-        "the bound says why it holds (or that it is a reference)"
-    )
+    if task.bound == "lower_bound":
+        assert task.bound_s is not None and task.bound_s.__doc__, "the bound says why it holds"
+    else:
+        assert task.reference is not None and "not a bound" in (task.reference.__doc__ or ""), (
+            "a reference says how it is found and that it is not a bound"
+        )
     module, _, function = task.plot.partition(":")
     assert callable(getattr(importlib.import_module(module), function))
     assert name in SECTIONS, "give the test a valid section of the new task"
@@ -63,7 +67,7 @@ def test_every_controller_of_a_task_validates_and_others_are_refused(name):
 
 def test_bad_task_sections_get_one_line_naming_the_key():
     cases = [
-        ({"kind": "flocking"}, "task: Input should be 'rendezvous' or 'formation'"),
+        ({"kind": "flocking"}, "task: Input should be 'rendezvous', 'formation' or 'coverage'"),
         ("formation", "task.slots: required key is missing"),
         (
             {"kind": "formation", "slots": {"circle": {"radius_m": -1}}},
@@ -85,6 +89,18 @@ def test_bad_task_sections_get_one_line_naming_the_key():
     for section, message in cases:
         with pytest.raises(ScenarioError, match=message.replace("[", r"\[").replace("(", r"\(")):
             parse_scenario({**BASE, "task": section, "controller": {"kind": "capt"}})
+    coverage_cases = [
+        ({"kind": "coverage", "region": [[0, 0], [1, 1], [2, 2]]}, "task.region: the polygon has no area"),
+        ({"kind": "coverage", "region": [[0, 0], [1, 0]]}, "task.region: List should have at least 3 items"),
+        (
+            {"kind": "coverage", "gaussians": [{"mean": [0, 0], "sigma_m": 0}]},
+            "task.gaussians[0].sigma_m: Input should be greater than 0",
+        ),
+        ({"kind": "coverage", "tolerance": 0}, "task.tolerance: Input should be greater than 0"),
+    ]
+    for section, message in coverage_cases:
+        with pytest.raises(ScenarioError, match=message.replace("[", r"\[").replace("(", r"\(")):
+            parse_scenario({**BASE, "task": section, "controller": {"kind": "lloyd_flood"}})
 
 
 @pytest.mark.parametrize("name", tasks.names())

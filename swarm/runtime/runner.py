@@ -136,11 +136,6 @@ def run_scenario(
     )
     if scenario.sim.engine == "kinematic":
         return run_kinematic(scenario, out_dir, scenario_path, progress)
-    if scenario.sim.engine == "pybullet" and scenario.task.kind not in ("rendezvous", "formation"):
-        raise ScenarioError(
-            f"task: {scenario.task.kind} runs on the kinematic engine only in this version"
-            " (--engine kinematic)"
-        )
     if scenario.sim.engine == "pybullet":
         from swarm.runtime.distributed import run_distributed
 

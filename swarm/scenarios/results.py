@@ -246,7 +246,8 @@ def summary_lines(outcome: dict, out_dir: Path | str) -> list[str]:
     faults = outcome.get("faults") or {}
     live = faults.get("live_robots")
     who = f" (live robots {live})" if live is not None and len(live) < outcome["robots"] else ""
-    metric = f"{outcome['metric']} <= {outcome['threshold']:g} m"
+    unit = " " + outcome.get("unit", "m") if outcome.get("unit", "m") else ""  # coverage: a ratio, none
+    metric = f"{outcome['metric']} <= {outcome['threshold']:g}{unit}"
     bound = outcome["lower_bound_s"]
     if outcome["converged"]:
         ratio = f", {outcome['ratio_to_lower_bound']:.2f}x the lower bound {bound:.2f} s" if bound else ""
@@ -255,7 +256,7 @@ def summary_lines(outcome: dict, out_dir: Path | str) -> list[str]:
         lines.append("  NOT converged: no live robot at the end")
     else:
         lines.append(
-            f"  NOT converged{who}: final {outcome['metric']} {outcome['final_metric']:.3f} m"
+            f"  NOT converged{who}: final {outcome['metric']} {outcome['final_metric']:.3f}{unit}"
             f" ({metric} wanted)"
         )
     from swarm.scenarios.safety_results import safety_summary_line

@@ -140,6 +140,9 @@ class ControllerSpec(_Strict):
     spacing_m: float | None = Field(
         None, gt=0, description="pack_flood: slot spacing (default 2(r + l) + 0.05)"
     )
+    cell_radius_m: float | None = Field(
+        None, gt=0, description="lloyd_local: cut each cell to this radius (half a disk graph's radius)"
+    )
 
     @field_validator("kind")
     @classmethod
@@ -152,7 +155,7 @@ class ControllerSpec(_Strict):
     def _options_of_kind(self) -> ControllerSpec:
         # model and gain predate the registry and stay accepted (and unused) by every kind
         takes = CONTROLLER_KINDS[self.kind].options
-        for option in ("directions", "reverse", "spacing_m"):
+        for option in ("directions", "reverse", "spacing_m", "cell_radius_m"):
             default = type(self).model_fields[option].default
             if getattr(self, option) != default and option not in takes:
                 taken = ", ".join(takes) or "no options"

@@ -97,3 +97,73 @@ def formation_pictures(
     fig.savefig(out_dir / "formation.png")
     (out_dir / "formation.png.json").write_text(json.dumps(plot_data(ax), separators=(",", ":")) + "\n")
     plt.close(fig)
+
+
+def coverage_pictures(
+    out_dir: Path, scenario: Scenario, times_s: np.ndarray, poses: np.ndarray, outcome: dict
+) -> None:
+    """``convergence.png``: ``H / H_ref`` over time with the success line ``1 + tolerance`` and the
+    success time; ``coverage.png``: the density on the region (shaded quadrature cells), the final
+    Voronoi cells (each quadrature point coloured by its nearest robot), the axle paths and the final
+    axles. The plotted data go to ``<png>.json`` (``report.plot_data``)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from swarm.core.tasks.coverage import locational_cost
+    from swarm.scenarios.report import plot_data, run_title
+
+    section = scenario.task
+    points, weights = section.quadrature()
+    positions = poses[..., :2]
+    title = run_title(scenario)
+    ratio = locational_cost(positions, points, weights) / outcome["reference_cost_m2"]
+    fig, ax = plt.subplots(figsize=(7.5, 4.5), dpi=110)
+    ax.plot(times_s, ratio, color="black", lw=2, label="H / H_ref")[0].set_gid("judged")
+    threshold = outcome["threshold"]
+    ax.axhline(threshold, color="tab:green", ls=":", label=f"{threshold:g} H_ref").set_gid("threshold")
+    ax.axhline(1.0, color="tab:red", ls="-.", lw=0.8, label="H_ref (best Lloyd: a reference)").set_gid(
+        "reference"
+    )
+    if (held_s := outcome["convergence_time_s"]) is not None:
+        ax.axvline(held_s, color="tab:green", label=f"held from {held_s:.2f} s").set_gid("converged")
+    ax.set_xlabel("simulated time (s)")
+    ax.set_ylabel("locational cost / reference")
+    ax.set_yscale("log")
+    ax.set_title(title, fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7, loc="upper right")
+    fig.tight_layout()
+    fig.savefig(out_dir / "convergence.png")
+    (out_dir / "convergence.png.json").write_text(json.dumps(plot_data(ax), separators=(",", ":")) + "\n")
+    plt.close(fig)
+
+    final = positions[-1]
+    fig, ax = plt.subplots(figsize=(6, 6), dpi=110)
+    if np.ptp(weights) > 0:  # a uniform density has nothing to shade
+        ax.tricontourf(points[:, 0], points[:, 1], weights, levels=12, cmap="Blues", alpha=0.6).set_gid(
+            "density"
+        )
+    if len(final) >= 3 and np.linalg.matrix_rank(final - final.mean(axis=0)) == 2:
+        from scipy.spatial import Voronoi, voronoi_plot_2d
+
+        voronoi_plot_2d(
+            Voronoi(final), ax, show_points=False, show_vertices=False, line_colors="tab:gray", line_width=0.8
+        )
+    region = np.asarray([*section.region, section.region[0]])
+    ax.plot(region[:, 0], region[:, 1], color="black", lw=1.2)[0].set_gid("region")
+    for robot in range(positions.shape[1]):
+        ax.plot(positions[:, robot, 0], positions[:, robot, 1], lw=0.8, alpha=0.7)[0].set_gid(f"path:{robot}")
+    ax.scatter(final[:, 0], final[:, 1], s=14, color="black", label="final axles", zorder=3).set_gid("final")
+    low, high = np.min(region, axis=0), np.max(region, axis=0)
+    margin = 0.05 * float(np.max(high - low))
+    ax.set_xlim(min(low[0], positions[..., 0].min()) - margin, max(high[0], positions[..., 0].max()) + margin)
+    ax.set_ylim(min(low[1], positions[..., 1].min()) - margin, max(high[1], positions[..., 1].max()) + margin)
+    ax.set_aspect("equal")
+    ax.set_title(f"{title}\nVoronoi cells at the end, H / H_ref = {ratio[-1]:.3f}", fontsize=9)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out_dir / "coverage.png")
+    (out_dir / "coverage.png.json").write_text(json.dumps(plot_data(ax), separators=(",", ":")) + "\n")
+    plt.close(fig)

@@ -30,11 +30,12 @@ class ControllerArgs:
     task: Any = None  # the scenario's task section (swarm.core.tasks)
     robot_id: int = 0  # onboard: the robot it runs on (what a task's per-robot form needs)
     spacing_m: float | None = None  # pack_flood: slot spacing (None: its default from the robot)
+    cell_radius_m: float | None = None  # lloyd_local: the cell's cut radius (None: not cut)
 
     @classmethod
     def from_spec(cls, spec: Mapping[str, Any], robot: RobotParams, control_period_s: float, **more):
         """From a scenario's ``controller`` section (a mapping, e.g. ``ControllerSpec.model_dump()``)."""
-        keys = ("gain", "directions", "reverse", "spacing_m")
+        keys = ("gain", "directions", "reverse", "spacing_m", "cell_radius_m")
         options = {key: spec[key] for key in keys if spec.get(key) is not None}
         return cls(robot=robot, control_period_s=control_period_s, **options, **more)
 
@@ -123,10 +124,52 @@ def _onboard_pack_flood(args: ControllerArgs):
     )
 
 
-def _formation(args: ControllerArgs):
-    if getattr(args.task, "kind", None) != "formation":
-        raise ValueError("this controller does the formation task: it needs task: {kind: formation, ...}")
+def _lloyd(args: ControllerArgs):
+    from swarm.sim.coverage_controllers import LloydExpert
+
+    return LloydExpert(args.robot, args.control_period_s, _coverage(args), args.reverse)
+
+
+def _lloyd_local(args: ControllerArgs):
+    from swarm.sim.coverage_controllers import LloydLocal
+
+    return LloydLocal(args.robot, args.control_period_s, _coverage(args), args.cell_radius_m, args.reverse)
+
+
+def _onboard_lloyd_local(args: ControllerArgs):
+    from swarm.sim.coverage_onboard import OnboardLloydLocal
+
+    return OnboardLloydLocal(
+        args.robot, args.control_period_s, _coverage(args), args.cell_radius_m, args.reverse
+    )
+
+
+def _lloyd_flood(args: ControllerArgs):
+    from swarm.sim.coverage_controllers import LloydFlood
+
+    return LloydFlood(args.robot, args.control_period_s, _coverage(args), args.robot_count, args.reverse)
+
+
+def _onboard_lloyd_flood(args: ControllerArgs):
+    from swarm.sim.coverage_onboard import OnboardLloydFlood
+
+    return OnboardLloydFlood(
+        args.robot, args.control_period_s, _coverage(args), args.robot_count, args.robot_id, args.reverse
+    )
+
+
+def _task_section(args: ControllerArgs, task: str):
+    if getattr(args.task, "kind", None) != task:
+        raise ValueError(f"this controller does the {task} task: it needs task: {{kind: {task}, ...}}")
     return args.task
+
+
+def _formation(args: ControllerArgs):
+    return _task_section(args, "formation")
+
+
+def _coverage(args: ControllerArgs):
+    return _task_section(args, "coverage")
 
 
 @dataclass(frozen=True)
@@ -200,6 +243,30 @@ CONTROLLER_KINDS: dict[str, ControllerKind] = {
             _onboard_capt_flood,
             ("reverse",),
             task="formation",
+        ),
+        ControllerKind(
+            "lloyd",
+            "coverage: every robot to its Voronoi cell's centroid among all robots (Lloyd; central)",
+            _lloyd,
+            None,
+            ("reverse",),
+            task="coverage",
+        ),
+        ControllerKind(
+            "lloyd_local",
+            "coverage: Lloyd over the heard neighbours' positions (Cortes et al. 2004)",
+            _lloyd_local,
+            _onboard_lloyd_local,
+            ("reverse", "cell_radius_m"),
+            task="coverage",
+        ),
+        ControllerKind(
+            "lloyd_flood",
+            "coverage: flood every robot's freshest position, Lloyd over everyone known",
+            _lloyd_flood,
+            _onboard_lloyd_flood,
+            ("reverse",),
+            task="coverage",
         ),
     )
 }

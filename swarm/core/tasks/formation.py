@@ -28,7 +28,7 @@ from typing import Literal
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-from swarm.core.tasks.registry import Task, register
+from swarm.core.tasks.registry import Task, register, settle_time
 
 
 class _Strict(BaseModel):
@@ -209,18 +209,6 @@ def conflicts(positions: np.ndarray, slots: np.ndarray) -> int:
     nearest to its own slot)."""
     nearest = distances(positions, slots).argmin(axis=1)
     return int(len(nearest) - len(np.unique(nearest)))
-
-
-def settle_time(times_s: np.ndarray, ok: np.ndarray, hold_s: float) -> float | None:
-    """First time from which ``ok`` holds to the end, if it held at least ``hold_s``; else None."""
-    times_s = np.asarray(times_s, dtype=np.float64)
-    ok = np.asarray(ok, dtype=bool)
-    if not ok[-1]:
-        return None
-    failed = np.flatnonzero(~ok)
-    start = int(failed[-1]) + 1 if len(failed) else 0
-    time_s = float(times_s[start])
-    return time_s if float(times_s[-1]) - time_s >= hold_s - 1e-9 else None
 
 
 def outcome(times_s: np.ndarray, positions: np.ndarray, section: FormationSection, v_max_mps: float) -> dict:

@@ -16,6 +16,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, Literal
 
+import numpy as np
 from pydantic import BaseModel
 
 Outcome = Callable[..., dict]
@@ -48,6 +49,9 @@ class Task:
     plot: str
     learned: tuple[str, ...] = ()
     outcome: Outcome | None = None
+    reference: Callable[..., float] | None = None
+    """``bound == "reference"``: ``(section, robot_count) -> value`` of the metric to compare with (its
+    docstring says how it is found and that it is not a bound)."""
 
     @property
     def controllers(self) -> tuple[str, ...]:
@@ -102,3 +106,15 @@ def parse_section(section: Mapping[str, Any] | None) -> Any:
         return task.section.model_validate(data)
     except ValidationError as error:
         raise ValueError(f"task section of the config: {error}") from None
+
+
+def settle_time(times_s: np.ndarray, ok: np.ndarray, hold_s: float) -> float | None:
+    """First time from which ``ok`` holds to the end, if it held at least ``hold_s``; else None."""
+    times_s = np.asarray(times_s, dtype=np.float64)
+    ok = np.asarray(ok, dtype=bool)
+    if not ok[-1]:
+        return None
+    failed = np.flatnonzero(~ok)
+    start = int(failed[-1]) + 1 if len(failed) else 0
+    time_s = float(times_s[start])
+    return time_s if float(times_s[-1]) - time_s >= hold_s - 1e-9 else None

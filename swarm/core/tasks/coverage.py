@@ -1,0 +1,287 @@
+"""Coverage (``task: coverage``): N robots spread over a region in proportion to a density.
+
+The region is a polygon and the density ``phi`` is uniform on it or a mixture of Gaussians, both public
+(every robot knows them). The metric is the locational cost of Cortes, Martinez, Karatas and Bullo
+(2004), on a fixed quadrature grid (:meth:`CoverageSection.quadrature`):
+
+    H(p) = integral over the region of min_i |q - p_i|^2 phi(q) dq  ~  sum_g w_g min_i |q_g - p_i|^2,
+
+with ``phi`` normalised to integrate to 1 over the region, so that H is a mean squared distance (m^2)
+from a point drawn from the density to its nearest robot (:func:`locational_cost`). The robots' axles
+are what is judged.
+
+Reference (:func:`reference_cost`): the least H that centralized Lloyd reaches from
+``reference_restarts`` k-means++ starts (seeded by ``reference_seed``), each iterated to a fixed point.
+This is a *reference, not a bound*: Lloyd finds centroidal Voronoi configurations, which are local
+minima of H, and a run may end below it (its ratio under 1). Success: ``H / H_ref <= 1 + tolerance``
+from some time to the end of the run, held ``hold_s``.
+
+Lloyd's map (:func:`lloyd_centroids`): every robot's target is the centroid of its Voronoi cell under
+the density (the gradient of H is ``2 M_i (p_i - C_i)``, Cortes et al. eq. 5). A robot whose cell holds
+no mass (every quadrature point is nearer another robot, or it is out of its cell radius) takes the
+density's centroid as its target, which every robot knows, so that no robot is stranded.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from swarm.core.tasks.registry import Task, register, settle_time
+
+FRAMES_PER_CHUNK = 32
+"""Frames of a trajectory whose cost is computed at once (bounds the ``(frames, G, N)`` array)."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+
+
+class Gaussian(_Strict):
+    """One component of the density: weight times the normal density of ``mean``, ``sigma_m``."""
+
+    mean: tuple[float, float]
+    sigma_m: float = Field(gt=0)
+    weight: float = Field(1.0, gt=0)
+
+
+def _default_region() -> list[tuple[float, float]]:
+    return [(-2.0, -2.0), (2.0, -2.0), (2.0, 2.0), (-2.0, 2.0)]
+
+
+class CoverageSection(_Strict):
+    """``task: {kind: coverage, region: [[x, y], ...], gaussians: [...], tolerance: 0.05}``."""
+
+    kind: Literal["coverage"] = "coverage"
+    region: list[tuple[float, float]] = Field(
+        default_factory=_default_region, min_length=3, description="polygon vertices in order (m)"
+    )
+    gaussians: list[Gaussian] = Field(default_factory=list, description="the density; empty: uniform")
+    grid_per_axis: int = Field(48, ge=8, le=400, description="quadrature cells along the longer side")
+    tolerance: float = Field(0.05, gt=0, description="success: H <= (1 + tolerance) H_ref")
+    hold_s: float = Field(2.0, ge=0, description="success must hold this long, to the end of the run")
+    reference_restarts: int = Field(16, ge=1, le=256, description="Lloyd restarts of the reference")
+    reference_seed: int = Field(0, ge=0)
+
+    @field_validator("region")
+    @classmethod
+    def _region_has_area(cls, region: list[tuple[float, float]]) -> list[tuple[float, float]]:
+        if polygon_area(np.asarray(region, dtype=np.float64)) <= 0.0:
+            raise ValueError("the polygon has no area (give its vertices in order)")
+        return region
+
+    @model_validator(mode="after")
+    def _quadrature_not_empty(self) -> CoverageSection:
+        points, _ = quadrature(self)
+        if len(points) == 0:
+            raise ValueError("region: no quadrature point falls inside the polygon; raise grid_per_axis")
+        return self
+
+    def quadrature(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(G, 2)`` points and ``(G,)`` weights summing to 1 (:func:`quadrature`)."""
+        return quadrature(self)
+
+
+def polygon_area(vertices: np.ndarray) -> float:
+    """The polygon's area (shoelace formula, absolute value)."""
+    x, y = vertices[:, 0], vertices[:, 1]
+    return 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+
+
+def inside_polygon(points: np.ndarray, vertices: np.ndarray) -> np.ndarray:
+    """``(G,)`` bool: is each point inside the polygon (even-odd rule: crossings of a ray to +x)."""
+    x, y = points[:, 0:1], points[:, 1:2]
+    x0, y0 = vertices[:, 0], vertices[:, 1]
+    x1, y1 = np.roll(x0, -1), np.roll(y0, -1)
+    straddles = (y0 > y) != (y1 > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        crossing_x = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
+    return (np.count_nonzero(straddles & (x < crossing_x), axis=1) % 2) == 1
+
+
+def density(points: np.ndarray, gaussians: list[Gaussian]) -> np.ndarray:
+    """``phi`` at the points, unnormalised: 1 (uniform) or ``sum_k w_k N(q; mean_k, sigma_k^2 I)``."""
+    if not gaussians:
+        return np.ones(len(points))
+    value = np.zeros(len(points))
+    for component in gaussians:
+        squared = ((points - np.asarray(component.mean)) ** 2).sum(-1)
+        variance = component.sigma_m**2
+        value += component.weight * np.exp(-0.5 * squared / variance) / (2.0 * math.pi * variance)
+    return value
+
+
+_QUADRATURES: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+
+
+def quadrature(section: CoverageSection) -> tuple[np.ndarray, np.ndarray]:
+    """The midpoint rule: square cells of side ``h = (longer side of the bounding box) / grid_per_axis``,
+    the centres inside the polygon, each weighted ``phi(q) h^2`` and normalised to sum 1. Cached per
+    section."""
+    key = section.model_dump_json(include={"region", "gaussians", "grid_per_axis"})
+    if key not in _QUADRATURES:
+        vertices = np.asarray(section.region, dtype=np.float64)
+        low, high = vertices.min(axis=0), vertices.max(axis=0)
+        side_m = float((high - low).max()) / section.grid_per_axis
+        xs = np.arange(low[0] + side_m / 2, high[0], side_m)
+        ys = np.arange(low[1] + side_m / 2, high[1], side_m)
+        grid = np.stack(np.meshgrid(xs, ys, indexing="xy"), axis=-1).reshape(-1, 2)
+        points = grid[inside_polygon(grid, vertices)]
+        weights = density(points, section.gaussians)
+        total = weights.sum()
+        weights = weights / total if total > 0 else weights
+        points.setflags(write=False)
+        weights.setflags(write=False)
+        _QUADRATURES[key] = (points, weights)
+    return _QUADRATURES[key]
+
+
+def density_centroid(points: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """``(2,)`` the centre of mass of the density (where a robot with an empty cell heads)."""
+    return weights @ points
+
+
+def locational_cost(positions: np.ndarray, points: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """``H`` of each configuration ``(..., N, 2)`` (module docstring), in m^2; shape ``(...)``."""
+    positions = np.asarray(positions, dtype=np.float64)
+    flat = positions.reshape(-1, *positions.shape[-2:])
+    cost = np.empty(len(flat))
+    for start in range(0, len(flat), FRAMES_PER_CHUNK):
+        chunk = flat[start : start + FRAMES_PER_CHUNK]
+        delta = points[None, :, None, :] - chunk[:, None, :, :]  # (F, G, N, 2)
+        nearest = (delta * delta).sum(-1).min(axis=-1)  # (F, G)
+        cost[start : start + len(chunk)] = nearest @ weights
+    return cost.reshape(positions.shape[:-2])
+
+
+def lloyd_centroids(positions: np.ndarray, points: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """``(N, 2)`` the centroid of each robot's Voronoi cell under the density (ties: the lowest robot
+    index), the density's centroid for an empty cell: one step of Lloyd's map."""
+    delta = points[:, None, :] - positions[None, :, :]
+    owner = (delta * delta).sum(-1).argmin(axis=1)  # (G,)
+    count = len(positions)
+    mass = np.bincount(owner, weights, minlength=count)
+    moment = np.stack([np.bincount(owner, weights * points[:, axis], minlength=count) for axis in (0, 1)], -1)
+    fallback = density_centroid(points, weights)
+    safe = np.where(mass > 0.0, mass, 1.0)[:, None]
+    return np.where(mass[:, None] > 0.0, moment / safe, fallback)
+
+
+def lloyd(
+    positions: np.ndarray,
+    points: np.ndarray,
+    weights: np.ndarray,
+    max_iterations: int = 2000,
+    tolerance_m: float = 1e-10,
+) -> np.ndarray:
+    """Lloyd's algorithm from ``positions`` to a fixed point (largest move under ``tolerance_m``)."""
+    current = np.asarray(positions, dtype=np.float64)
+    for _ in range(max_iterations):
+        following = lloyd_centroids(current, points, weights)
+        moved = float(np.abs(following - current).max(initial=0.0))
+        current = following
+        if moved < tolerance_m:
+            break
+    return current
+
+
+def kmeans_plus_plus(
+    points: np.ndarray, weights: np.ndarray, count: int, rng: np.random.Generator
+) -> np.ndarray:
+    """``(count, 2)`` seeds drawn from the quadrature points by k-means++ (Arthur and Vassilvitskii 2007),
+    with the density as the points' weights."""
+    chosen = [int(rng.choice(len(points), p=weights))]
+    nearest = ((points - points[chosen[0]]) ** 2).sum(-1)
+    for _ in range(1, count):
+        score = weights * nearest
+        total = score.sum()
+        index = int(rng.choice(len(points), p=score / total)) if total > 0 else int(rng.integers(len(points)))
+        chosen.append(index)
+        nearest = np.minimum(nearest, ((points - points[index]) ** 2).sum(-1))
+    return points[chosen].astype(np.float64)
+
+
+_REFERENCES: dict[tuple[str, int], tuple[float, np.ndarray]] = {}
+
+
+def reference(section: CoverageSection, count: int) -> tuple[float, np.ndarray]:
+    """``(H_ref, positions (N, 2))``: the best fixed point of centralized Lloyd over the section's
+    restarts (module docstring: a reference, not a bound). Cached per section and N."""
+    key = (section.model_dump_json(exclude={"tolerance", "hold_s"}), int(count))
+    if key not in _REFERENCES:
+        points, weights = section.quadrature()
+        rng = np.random.default_rng(section.reference_seed)
+        best_cost, best = math.inf, np.zeros((count, 2))
+        for _ in range(section.reference_restarts):
+            fixed = lloyd(kmeans_plus_plus(points, weights, count, rng), points, weights)
+            cost = float(locational_cost(fixed, points, weights))
+            if cost < best_cost:
+                best_cost, best = cost, fixed
+        _REFERENCES[key] = (best_cost, best)
+    return _REFERENCES[key]
+
+
+def reference_cost(section: CoverageSection, count: int) -> float:
+    """``H_ref`` (m^2): the least locational cost centralized Lloyd reaches over the section's restarts
+    (:func:`reference`). A reference, not a bound: Lloyd's fixed points are local minima of H."""
+    return reference(section, count)[0]
+
+
+REPORT_TIMES_S = (5.0, 10.0, 20.0, 40.0)
+"""The times at which ``outcome`` reports ``H / H_ref`` (those within the run)."""
+
+
+def outcome(times_s: np.ndarray, positions: np.ndarray, section: CoverageSection, v_max_mps: float) -> dict:
+    """The task's results from the axle positions ``(T, N, 2)``: ``H / H_ref`` at the start, the end and
+    the report times; success (``converged``: within ``1 + tolerance`` held ``hold_s`` to the end) and
+    its time; the first time within it (held or not); H and H_ref in m^2."""
+    positions = np.asarray(positions, dtype=np.float64)
+    times_s = np.asarray(times_s, dtype=np.float64)
+    points, weights = section.quadrature()
+    cost = locational_cost(positions, points, weights)
+    h_ref = reference_cost(section, positions.shape[1])
+    ratio = cost / h_ref
+    within = ratio <= 1.0 + section.tolerance
+    time_s = settle_time(times_s, within, section.hold_s)
+    first = np.flatnonzero(within)
+    return {
+        "metric": "coverage_ratio",
+        "unit": "",
+        "threshold": 1.0 + section.tolerance,
+        "converged": time_s is not None,
+        "convergence_time_s": time_s,
+        "hold_s": section.hold_s,
+        "initial_metric": float(ratio[0]),
+        "final_metric": float(ratio[-1]),
+        "first_within_s": float(times_s[first[0]]) if len(first) else None,
+        "ratio_at_s": {
+            f"{t:g}": float(np.interp(t, times_s, ratio)) for t in REPORT_TIMES_S if t <= times_s[-1]
+        },
+        "coverage_cost_m2": float(cost[-1]),
+        "reference_cost_m2": h_ref,
+        "lower_bound_s": None,
+        "ratio_to_lower_bound": None,
+    }
+
+
+COVERAGE = register(
+    Task(
+        name="coverage",
+        summary="spread over a region by a density (least locational cost H)",
+        section=CoverageSection,
+        knows="its own pose, the public region and density, and what its heard neighbours sent last tick",
+        experts=("lloyd",),
+        baselines=("lloyd_local", "lloyd_flood"),
+        metric="coverage_ratio: H / H_ref, H the locational cost on the quadrature grid (m^2)",
+        success="H <= (1 + tolerance) H_ref from some time to the end, held hold_s",
+        bound="reference",
+        bound_s=None,
+        reference=reference_cost,
+        reward="none yet (issue 20: the RL environments are rendezvous only)",
+        plot="swarm.scenarios.task_report:coverage_pictures",
+        outcome=outcome,
+    )
+)

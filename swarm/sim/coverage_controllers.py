@@ -1,0 +1,208 @@
+"""Batched controllers of the coverage task (``swarm.core.tasks.coverage``).
+
+Every kind drives each axle at full speed toward a target (``swarm.core.experts.drive_toward_velocity``:
+the whole way in one control period when closer than ``v_max T``, so near a fixed point a tick is one
+step of Lloyd's map). The kinds differ in what the target is computed from:
+
+- ``lloyd`` (:class:`LloydExpert`, centralized): the centroid of the robot's Voronoi cell among all
+  robots' current positions (Lloyd's map, ``swarm.core.tasks.coverage.lloyd_centroids``, but with a
+  boundary point in every cell it is nearest to, as below).
+- ``lloyd_local`` (:class:`LloydLocal`, decentralized; Cortes, Martinez, Karatas and Bullo 2004): the
+  centroid of its cell among itself and the neighbours it heard this tick (their positions of last
+  tick: the message is the sender's axle ``(x, y)``), cut to the disc of ``cell_radius_m`` around it when
+  that is set (the limited-range cell of Cortes, Martinez and Bullo 2005: with ``cell_radius_m`` half a
+  disk graph's radius the cut cell lies inside the true Voronoi cell).
+- ``lloyd_flood`` (:class:`LloydFlood`, decentralized): every robot floods the freshest position it knows
+  of every robot with its age in hops (message ``N x (age + 1, x, y)``, 0: unknown; the merge keeps the
+  least age, the robot's own memory first on ties), and takes the centroid of its cell among every robot
+  it knows. After graph-diameter ticks it knows everyone, a robot h hops away as of h ticks ago; its
+  Voronoi neighbours are near it and mostly few hops away, so its cell is nearly the expert's.
+
+The cells of the two decentralized kinds are computed by one numba kernel (:func:`cell_sums`); the
+robots' on-board forms (``swarm.sim.coverage_onboard``) compute them with numpy masks, to rounding.
+A point on a cell's boundary (equidistant) belongs to every robot it is nearest to.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from swarm.core.experts import drive_toward_velocity
+from swarm.core.robot import RobotParams
+from swarm.core.tasks.coverage import CoverageSection, density_centroid
+from swarm.sim.links import Links
+
+
+@numba.njit(cache=True)
+def cell_sums(
+    own: np.ndarray,
+    others: np.ndarray,
+    valid: np.ndarray,
+    points: np.ndarray,
+    weights: np.ndarray,
+    radius_sq: float,
+    out: np.ndarray,
+) -> None:
+    """``out (B, N, 3)``: mass and first moments ``(M, M x, M y)`` of robot i's cell, the quadrature
+    points at most ``sqrt(radius_sq)`` from ``own (B, N, 2)`` and no farther from it than from any
+    ``others[b, i, k]`` with ``valid[b, i, k]`` (``(B, N, K, 2)``, ``(B, N, K)``)."""
+    batch, count = own.shape[0], own.shape[1]
+    slots = others.shape[2]
+    for b in range(batch):
+        for i in range(count):
+            px, py = own[b, i, 0], own[b, i, 1]
+            mass, moment_x, moment_y = 0.0, 0.0, 0.0
+            for g in range(points.shape[0]):
+                qx, qy = points[g, 0], points[g, 1]
+                dx, dy = qx - px, qy - py
+                mine = dx * dx + dy * dy
+                if mine > radius_sq:
+                    continue
+                inside = True
+                for k in range(slots):
+                    if not valid[b, i, k]:
+                        continue
+                    ex, ey = qx - others[b, i, k, 0], qy - others[b, i, k, 1]
+                    if ex * ex + ey * ey < mine:
+                        inside = False
+                        break
+                if inside:
+                    mass += weights[g]
+                    moment_x += weights[g] * qx
+                    moment_y += weights[g] * qy
+            out[b, i, 0] = mass
+            out[b, i, 1] = moment_x
+            out[b, i, 2] = moment_y
+
+
+def centroid_targets(sums: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    """``(..., 2)`` each cell's centroid ``(M x, M y) / M``, ``fallback`` where the cell has no mass."""
+    mass = sums[..., 0:1]
+    return np.where(mass > 0.0, sums[..., 1:] / np.where(mass > 0.0, mass, 1.0), fallback)
+
+
+class _Coverage:
+    centralized = False
+
+    def __init__(self, robot: RobotParams, control_period_s: float, section: CoverageSection, reverse: bool):
+        self.robot = robot
+        self.control_period_s = float(control_period_s)
+        self.section = section
+        self.reverse = bool(reverse)
+        self.points, self.weights = section.quadrature()
+        self.fallback = density_centroid(self.points, self.weights)
+
+    def drive(self, poses: np.ndarray, targets: np.ndarray) -> np.ndarray:
+        return drive_toward_velocity(
+            poses, targets, self.robot.v_max_mps, self.control_period_s, self.reverse
+        )
+
+    def cells(
+        self, own: np.ndarray, others: np.ndarray, valid: np.ndarray, radius_m: float | None
+    ) -> np.ndarray:
+        sums = np.empty((*own.shape[:2], 3))
+        radius_sq = math.inf if radius_m is None else float(radius_m) ** 2
+        cell_sums(
+            np.ascontiguousarray(own),
+            np.ascontiguousarray(others),
+            np.ascontiguousarray(valid),
+            self.points,
+            self.weights,
+            radius_sq,
+            sums,
+        )
+        return centroid_targets(sums, self.fallback)
+
+
+class LloydExpert(_Coverage):
+    """``lloyd``: the centralized coverage expert (module docstring)."""
+
+    message_dim = 0
+    centralized = True
+
+    def act(
+        self, poses: np.ndarray, points: np.ndarray, inbox: np.ndarray, heard: Links
+    ) -> tuple[np.ndarray, np.ndarray]:
+        batch, count = poses.shape[:2]
+        others = np.broadcast_to(poses[:, None, :, :2], (batch, count, count, 2))
+        valid = np.broadcast_to(~np.eye(count, dtype=bool), (batch, count, count))
+        return self.drive(poses, self.cells(poses[..., :2], others, valid, None)), inbox
+
+
+class LloydLocal(_Coverage):
+    """``lloyd_local``: Lloyd over the heard neighbours (module docstring)."""
+
+    message_dim = 2
+
+    def __init__(
+        self,
+        robot: RobotParams,
+        control_period_s: float,
+        section: CoverageSection,
+        cell_radius_m: float | None = None,
+        reverse: bool = True,
+    ):
+        super().__init__(robot, control_period_s, section, reverse)
+        self.cell_radius_m = cell_radius_m
+
+    def act(
+        self, poses: np.ndarray, points: np.ndarray, inbox: np.ndarray, heard: Links
+    ) -> tuple[np.ndarray, np.ndarray]:
+        batch = poses.shape[0]
+        valid = heard.index >= 0  # (B, N, S)
+        envs = np.arange(batch)[:, None, None]
+        others = inbox[envs, np.where(valid, heard.index, 0), :2]  # (B, N, S, 2)
+        targets = self.cells(poses[..., :2], others, valid, self.cell_radius_m)
+        return self.drive(poses, targets), np.ascontiguousarray(poses[..., :2])
+
+
+class LloydFlood(_Coverage):
+    """``lloyd_flood``: Lloyd over every robot's freshest flooded position (module docstring)."""
+
+    def __init__(
+        self,
+        robot: RobotParams,
+        control_period_s: float,
+        section: CoverageSection,
+        robot_count: int,
+        reverse: bool = True,
+    ):
+        super().__init__(robot, control_period_s, section, reverse)
+        self.count = int(robot_count)
+        self.message_dim = 3 * self.count
+
+    def merge(self, poses: np.ndarray, inbox: np.ndarray, heard: Links) -> np.ndarray:
+        """``(B, N, N, 3)`` robot i's table of tick k: its own of k-1 (``inbox[:, i]``) one hop older,
+        its own position fresh, and each heard neighbour's entries one hop older where strictly fresher
+        (slot order; the robot's own table first)."""
+        batch, count = poses.shape[:2]
+        memory = inbox[:, :count].reshape(batch, count, count, 3).copy()
+        memory[..., 0] = np.where(memory[..., 0] > 0.0, memory[..., 0] + 1.0, 0.0)
+        own = np.arange(count)
+        memory[:, own, own, 0] = 1.0
+        memory[:, own, own, 1:] = poses[..., :2]
+        envs = np.arange(batch)[:, None]
+        for slot in range(heard.index.shape[2]):
+            sender = heard.index[:, :, slot]  # (B, N), -1: none
+            valid = sender >= 0
+            if not valid.any():
+                continue
+            theirs = inbox[envs, np.where(valid, sender, 0)].reshape(batch, count, count, 3)
+            age = np.where(theirs[..., 0] > 0.0, theirs[..., 0] + 1.0, 0.0)
+            fresher = valid[..., None] & (age > 0.0) & ((memory[..., 0] == 0.0) | (age < memory[..., 0]))
+            memory[fresher, 0] = age[fresher]
+            memory[fresher, 1:] = theirs[fresher, 1:]
+        return memory
+
+    def act(
+        self, poses: np.ndarray, points: np.ndarray, inbox: np.ndarray, heard: Links
+    ) -> tuple[np.ndarray, np.ndarray]:
+        batch, count = poses.shape[:2]
+        memory = self.merge(poses, inbox, heard)
+        valid = memory[..., 0] > 0.0
+        valid[:, np.arange(count), np.arange(count)] = False  # itself is `own`
+        targets = self.cells(poses[..., :2], memory[..., 1:], valid, None)
+        return self.drive(poses, targets), memory.reshape(batch, count, 3 * count)

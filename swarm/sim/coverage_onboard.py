@@ -1,0 +1,119 @@
+"""The coverage baselines ``lloyd_local`` and ``lloyd_flood`` on board one robot (numpy only).
+
+The same rules as ``swarm.sim.coverage_controllers`` for one robot: its cell is the set of quadrature
+points no farther from it than from any robot it knows of (and within ``cell_radius_m`` when set), a
+numpy mask here where the batched form loops in numba; the target is the cell's centroid under the
+density, the density's centroid for an empty cell. ``tests/test_contract.py`` checks that both forms
+compute the same commands and messages.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from swarm.core.experts import drive_toward_velocity
+from swarm.core.robot import RobotParams
+from swarm.core.tasks.coverage import CoverageSection, density_centroid
+
+
+def cell_centroid(
+    own: np.ndarray,
+    others: np.ndarray,
+    points: np.ndarray,
+    weights: np.ndarray,
+    fallback: np.ndarray,
+    radius_m: float | None = None,
+) -> np.ndarray:
+    """``(2,)`` the centroid of the cell of ``own (2,)`` among ``others (K, 2)`` (module docstring)."""
+    dx, dy = points[:, 0] - own[0], points[:, 1] - own[1]
+    mine = dx * dx + dy * dy
+    inside = np.ones(len(points), dtype=bool) if radius_m is None else mine <= float(radius_m) ** 2
+    for other in np.asarray(others, dtype=np.float64).reshape(-1, 2):
+        ex, ey = points[:, 0] - other[0], points[:, 1] - other[1]
+        inside &= ~(ex * ex + ey * ey < mine)
+    mass = float(weights[inside].sum())
+    if mass <= 0.0:
+        return np.array(fallback, dtype=np.float64)
+    return (weights[inside] @ points[inside]) / mass
+
+
+class _OnboardCoverage:
+    def __init__(self, robot: RobotParams, control_period_s: float, section: CoverageSection, reverse: bool):
+        self.robot = robot
+        self.control_period_s = float(control_period_s)
+        self.reverse = bool(reverse)
+        self.points, self.weights = section.quadrature()
+        self.fallback = density_centroid(self.points, self.weights)
+
+    def drive(self, pose: np.ndarray, target: np.ndarray) -> np.ndarray:
+        return drive_toward_velocity(pose, target, self.robot.v_max_mps, self.control_period_s, self.reverse)
+
+
+class OnboardLloydLocal(_OnboardCoverage):
+    """``lloyd_local`` for one robot: ``act_one(pose (3,), neighbour_messages (m, 2), weights)``."""
+
+    message_dim = 2
+
+    def __init__(
+        self,
+        robot: RobotParams,
+        control_period_s: float,
+        section: CoverageSection,
+        cell_radius_m: float | None = None,
+        reverse: bool = True,
+    ):
+        super().__init__(robot, control_period_s, section, reverse)
+        self.cell_radius_m = cell_radius_m
+
+    def act_one(
+        self, pose: np.ndarray, neighbour_messages: np.ndarray, weights: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        pose = np.asarray(pose, dtype=np.float64)
+        target = cell_centroid(
+            pose[:2], neighbour_messages, self.points, self.weights, self.fallback, self.cell_radius_m
+        )
+        return self.drive(pose, target), pose[:2].copy()
+
+
+def merge_freshest(table: np.ndarray, neighbour_messages: np.ndarray) -> None:
+    """Unite heard tables (each ``N x (age + 1, x, y)``, 0: unknown) into ``table`` in place, one hop
+    older: an entry replaces the robot's own where strictly fresher, in message order."""
+    count = len(table)
+    for message in np.asarray(neighbour_messages, dtype=np.float64).reshape(-1, count, 3):
+        age = np.where(message[:, 0] > 0.0, message[:, 0] + 1.0, 0.0)
+        fresher = (age > 0.0) & ((table[:, 0] == 0.0) | (age < table[:, 0]))
+        table[fresher, 0] = age[fresher]
+        table[fresher, 1:] = message[fresher, 1:]
+
+
+class OnboardLloydFlood(_OnboardCoverage):
+    """``lloyd_flood`` for robot ``robot_id``: ``act_one(pose (3,), neighbour_messages (m, 3N), weights)``."""
+
+    def __init__(
+        self,
+        robot: RobotParams,
+        control_period_s: float,
+        section: CoverageSection,
+        robot_count: int,
+        robot_id: int,
+        reverse: bool = True,
+    ):
+        super().__init__(robot, control_period_s, section, reverse)
+        self.count = int(robot_count)
+        self.robot_id = int(robot_id)
+        self.message_dim = 3 * self.count
+        self._table = np.zeros((self.count, 3))  # what it sent last tick
+
+    def act_one(
+        self, pose: np.ndarray, neighbour_messages: np.ndarray, weights: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        pose = np.asarray(pose, dtype=np.float64)
+        table = self._table.copy()
+        table[:, 0] = np.where(table[:, 0] > 0.0, table[:, 0] + 1.0, 0.0)
+        table[self.robot_id] = (1.0, pose[0], pose[1])
+        merge_freshest(table, neighbour_messages)
+        known = table[:, 0] > 0.0
+        known[self.robot_id] = False
+        target = cell_centroid(pose[:2], table[known, 1:], self.points, self.weights, self.fallback)
+        self._table = table
+        return self.drive(pose, target), table.reshape(-1).copy()

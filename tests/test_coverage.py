@@ -1,0 +1,182 @@
+"""The coverage task (swarm.core.tasks.coverage) and its controllers (lloyd, lloyd_local, lloyd_flood):
+the cost and the reference by hand on small cases, the cell rule on ties in both forms, decentralization
+measured from outside, and a run of the scenarios through ``swarm run``."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from swarm.core import graphs, tasks
+from swarm.core.robot import RobotParams
+from swarm.core.tasks import coverage
+from swarm.sim.controller_kinds import ControllerArgs, batched_controller, onboard_controller
+from swarm.sim.coverage_controllers import cell_sums, centroid_targets
+from swarm.sim.coverage_onboard import cell_centroid
+from swarm.sim.kinematic import KinematicSim
+
+ROOT = Path(__file__).resolve().parents[1]
+ROBOT = RobotParams()
+DT = 0.05
+SQUARE = [[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]]
+
+
+def section(**more) -> coverage.CoverageSection:
+    return tasks.parse_section({"kind": "coverage", "region": SQUARE, **more})
+
+
+def test_the_quadrature_is_the_midpoint_rule_of_the_region():
+    square = section(grid_per_axis=10)
+    points, weights = square.quadrature()
+    assert len(points) == 100 and np.isclose(weights.sum(), 1.0) and np.allclose(weights, 0.01)
+    assert np.isclose(points[:, 0].min(), -0.9) and np.isclose(points[:, 0].max(), 0.9)
+    # an L: the unit square [0, 2]^2 less its top right quarter holds 3/4 of the cells
+    ell = tasks.parse_section(
+        {"kind": "coverage", "region": [[0, 0], [2, 0], [2, 1], [1, 1], [1, 2], [0, 2]], "grid_per_axis": 20}
+    )
+    points, _ = ell.quadrature()
+    assert len(points) == 300
+    assert not np.any((points[:, 0] > 1) & (points[:, 1] > 1))
+
+
+def test_the_cost_of_one_robot_at_the_centre_of_a_square_is_two_thirds():
+    """H = (1/4) double integral over [-1, 1]^2 of x^2 + y^2 = 2/3; the midpoint rule is h^2/6 short."""
+    square = section(grid_per_axis=48)
+    points, weights = square.quadrature()
+    h = 2.0 / 48
+    assert math.isclose(float(coverage.locational_cost(np.zeros((1, 2)), points, weights)), 2 / 3 - h * h / 6)
+
+
+def test_the_reference_of_two_robots_in_a_square_is_the_halves():
+    """Two robots on [-1, 1]^2: the cells are halves and their centroids (+-0.5, 0) (or the transpose);
+    H = 1/12 + 1/3 = 5/12 (the grid's midpoint rule short by h^2/6)."""
+    square = section(grid_per_axis=48)
+    h_ref, positions = coverage.reference(square, 2)
+    h = 2.0 / 48
+    assert math.isclose(h_ref, 5 / 12 - h * h / 6, rel_tol=1e-9)
+    assert np.allclose(np.sort(np.abs(positions).max(axis=1)), [0.5, 0.5])
+
+
+def test_a_gaussian_density_pulls_the_reference_to_its_mean():
+    skewed = section(gaussians=[{"mean": [0.5, 0.5], "sigma_m": 0.2}])
+    _, positions = coverage.reference(skewed, 3)
+    assert np.linalg.norm(positions.mean(axis=0) - [0.5, 0.5]) < 0.15
+
+
+def test_a_tie_point_belongs_to_every_cell_it_is_nearest_to_in_both_forms():
+    """Grid of 8 cells per side on [0, 4]^2 (points at 0.25 .. 3.75); robots at (1, 0.25) and
+    (1.5, 0.25): the points of column x = 1.25 are as near one as the other and count in both cells."""
+    tie = tasks.parse_section(
+        {"kind": "coverage", "region": [[0, 0], [4, 0], [4, 4], [0, 4]], "grid_per_axis": 8}
+    )
+    points, weights = tie.quadrature()
+    own, other = np.array([1.0, 0.25]), np.array([1.5, 0.25])
+    fallback = np.zeros(2)
+    mine = cell_centroid(own, other[None], points, weights, fallback)
+    column = points[:, 0] <= 1.25  # x = 0.25, 0.75 and 1.25: the tie column included
+    assert np.allclose(mine, points[column].mean(axis=0))
+    sums = np.empty((1, 2, 3))
+    both = np.array([[own, other]])
+    cell_sums(
+        both, both[:, ::-1][:, :, None, :].copy(), np.ones((1, 2, 1), bool), points, weights, math.inf, sums
+    )
+    batched = centroid_targets(sums, fallback)[0]
+    assert np.allclose(batched[0], mine)
+    assert np.allclose(batched[1], cell_centroid(other, own[None], points, weights, fallback))
+    assert np.isclose(sums[0, 0, 0] + sums[0, 1, 0], 1.0 + 8 / 64)  # the tie column counted twice
+
+
+def test_an_empty_cell_heads_for_the_density_centroid():
+    square = section(grid_per_axis=8, gaussians=[{"mean": [0.5, 0.0], "sigma_m": 0.4}])
+    points, weights = square.quadrature()
+    centre = coverage.density_centroid(points, weights)
+    far_robot = cell_centroid(np.array([30.0, 30.0]), np.zeros((1, 2)), points, weights, centre)
+    assert np.array_equal(far_robot, centre)
+    cut = cell_centroid(np.array([3.0, 0.0]), np.zeros((0, 2)), points, weights, centre, radius_m=1.0)
+    assert np.array_equal(cut, centre)
+
+
+def _args(kind_section, count, robot_id=0, **more):
+    return ControllerArgs(
+        robot=ROBOT, control_period_s=DT, robot_count=count, task=kind_section, robot_id=robot_id, **more
+    )
+
+
+@pytest.mark.parametrize("kind", ["lloyd_local", "lloyd_flood"])
+def test_a_robot_hears_of_a_robot_k_hops_away_no_sooner_than_k_ticks(kind):
+    """Decentralization from outside: on a line of 8, moving robot 7's start changes nothing of robot
+    0's commands for the first 7 ticks (7 hops), and does change the swarm's later. Robot 7 sits next
+    to robot 0, so that a controller reading its position (``lloyd``) changes robot 0's command at once."""
+    count, square = 8, section(grid_per_axis=24)
+    rng = np.random.default_rng(3)
+    start = np.concatenate([rng.uniform(-1, 1, (1, count, 2)), rng.uniform(-np.pi, np.pi, (1, count, 1))], -1)
+    start[0, 7, :2] = start[0, 0, :2] + [0.3, 0.0]
+    moved = start.copy()
+    moved[0, 7, :2] += [0.1, 0.2]
+    commands = []
+    for poses in (start, moved):
+        sim = KinematicSim(
+            ROBOT,
+            batched_controller(kind, _args(square, count)),
+            DT,
+            poses,
+            adjacency=graphs.line(count)[None],
+        )
+        ticks = []
+        for _ in range(12):
+            u_world = sim.act()
+            ticks.append(u_world[0].copy())
+            sim.move(u_world)
+        commands.append(np.array(ticks))
+    assert np.array_equal(commands[0][:7, 0], commands[1][:7, 0])
+    assert not np.array_equal(commands[0][:, 6], commands[1][:, 6])
+
+
+def test_the_flood_knows_everyone_after_the_diameter_and_ages_count_hops():
+    count, square = 6, section(grid_per_axis=12)
+    rng = np.random.default_rng(0)
+    start = np.concatenate([rng.uniform(-1, 1, (count, 2)), np.zeros((count, 1))], -1)
+    agents = [onboard_controller("lloyd_flood", _args(square, count, robot_id=i)) for i in range(count)]
+    adjacency = graphs.line(count)
+    sent = [np.zeros(3 * count) for _ in range(count)]
+    for _ in range(count):  # tick k: robot 0 knows the robots k hops away
+        outbox = []
+        for i, agent in enumerate(agents):
+            heard = np.array([sent[j] for j in range(count) if adjacency[i, j]])
+            outbox.append(agent.act_one(start[i], heard)[1])
+        sent = outbox
+    table = sent[0].reshape(count, 3)
+    assert np.array_equal(table[:, 0], 1.0 + np.arange(count))  # robot j is j hops from robot 0
+    assert np.array_equal(table[:, 1:], start[:, :2])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["complete-lloyd", "cycle-lloyd_flood", "complete-lloyd_local"])
+def test_the_coverage_scenarios_run_and_report_the_cost(tmp_path, name):
+    """``swarm run`` of a committed scenario: exit 0, success, and the final cost recomputed here from the
+    trajectory on a finer grid of this test's own (the oracle) within the quadrature's error."""
+    from swarm.cli import main
+
+    out = tmp_path / name
+    assert main(["run", str(ROOT / "scenarios" / "coverage" / f"{name}.yaml"), "--out", str(out)]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["task"] == "coverage" and metrics["converged"]
+    assert metrics["final_metric"] <= 1.05 and metrics["first_within_s"] <= metrics["convergence_time_s"]
+    assert {"coverage.png", "convergence.png", "coverage.png.json"} <= {p.name for p in out.iterdir()}
+    lines = (out / "trajectory.jsonl").read_text().splitlines()
+    final = np.array([pose[:2] for pose in json.loads(lines[-1])["poses"]])
+    scenario = tasks.parse_section(
+        __import__("yaml").safe_load((ROOT / "scenarios" / "coverage" / f"{name}.yaml").read_text())["task"]
+    )
+    vertices = np.array(scenario.region)
+    low, high = vertices.min(axis=0), vertices.max(axis=0)
+    fine = 400
+    xs = low[0] + (np.arange(fine) + 0.5) * (high[0] - low[0]) / fine
+    ys = low[1] + (np.arange(fine) + 0.5) * (high[1] - low[1]) / fine
+    grid = np.stack(np.meshgrid(xs, ys), -1).reshape(-1, 2)  # the region is a square: every point inside
+    nearest = ((grid[:, None, :] - final[None]) ** 2).sum(-1).min(axis=1)
+    assert math.isclose(float(nearest.mean()), metrics["coverage_cost_m2"], rel_tol=0.01)
