@@ -246,6 +246,8 @@ def summary_lines(outcome: dict, out_dir: Path | str) -> list[str]:
     faults = outcome.get("faults") or {}
     live = faults.get("live_robots")
     who = f" (live robots {live})" if live is not None and len(live) < outcome["robots"] else ""
+    if who and outcome.get("task", "rendezvous") != "rendezvous":  # its own rule: every body is judged
+        who = f" (every robot's body judged; live agents {live})"
     unit = " " + outcome.get("unit", "m") if outcome.get("unit", "m") else ""  # coverage: a ratio, none
     metric = f"{outcome['metric']} <= {outcome['threshold']:g}{unit}"
     bound = outcome["lower_bound_s"]
