@@ -9,7 +9,8 @@ fixed and on a disk graph, without faults and under every link fault kind (a del
 an inbox of several ticks), with a mid-run restart of one environment and a ``keep`` of some, the
 sweep's convergence loop, serial and then with every kernel threaded. An index out of bounds raises
 IndexError and the script fails. It then requires that every compiled kernel of ``swarm.sim.kernels``,
-``swarm.sim.mec_kernels``, ``swarm.sim.flood_kernel`` and ``swarm.sim.safety_kernel`` (the safety filter, run
+``swarm.sim.mec_kernels``, ``swarm.sim.flood_kernel``, ``swarm.sim.coverage_controllers`` (the coverage
+kinds, on a coverage section) and ``swarm.sim.safety_kernel`` (the safety filter, run
 with one, two and five robots and an obstacle) has run (a new kernel is checked for free,
 or this test names it). Process faults need the pybullet engine (``tests/test_contract.py`` checks
 that the kinematic engine refuses them).
@@ -49,7 +50,8 @@ from pathlib import Path
 from swarm.core.faults import LINK_FAULTS, LinkFaults
 from swarm.core.robot import RobotParams
 from swarm.scenarios.sweep import converge_batch
-from swarm.sim import flood_kernel, kernels, mec_kernels, safety_kernel
+from swarm.sim import coverage_controllers, flood_kernel, kernels, mec_kernels, safety_kernel
+from swarm.core import tasks
 from swarm.core.obstacles import Capsules, ObstacleSpec
 from swarm.core.safety import SafetyParams
 from swarm.sim.safety_filter import SafetyFilter
@@ -63,8 +65,9 @@ models = {}
 for path in sorted(Path(sys.argv[1]).glob("*.npz")):
     models.setdefault(load_policy(path).kind, str(path))
 variants = []
+SECTIONS = {"rendezvous": None, "coverage": tasks.parse_section({"kind": "coverage", "grid_per_axis": 12})}
 for name, kind in CONTROLLER_KINDS.items():
-    if kind.task != "rendezvous":  # the formation kinds are numpy (no kernel) and need a formation task
+    if kind.task == "formation":  # numpy (no kernel)
         continue
     variants += [(name, model) for model in models.values()] if "model" in kind.options else [(name, None)]
 
@@ -99,7 +102,8 @@ for threshold in (1 << 62, 0):  # serial, then every kernel threaded
         for _ in range(6):
             sim.step()
     for name, model in variants:
-        args = ControllerArgs(robot=robot, robot_count=count, policy=model)
+        task = SECTIONS[CONTROLLER_KINDS[name].task]
+        args = ControllerArgs(robot=robot, robot_count=count, policy=model, task=task)
         for graph in ({"adjacency": graphs.line(count)}, {"disk_radius_m": 1.2}):
             for kind in (None, *LINK_FAULTS):
                 faults = None if kind is None else LinkFaults(link_faults(kind), 0.05, 1)
@@ -115,6 +119,8 @@ for threshold in (1 << 62, 0):  # serial, then every kernel threaded
                 for _ in range(3):
                     sim.step()
                 runs += 1
+        if task is not None:  # the sweep's convergence loop is rendezvous's
+            continue
         sim = KinematicSim(robot, batched_controller(name, args), 0.05, start(), disk_radius_m=1.2)
         converge_batch(sim, 0.5, 1.0, 0.2, disconnected=np.zeros(batch, dtype=bool))
 known = np.zeros(2 * 4 + 1)
@@ -130,7 +136,7 @@ def dispatchers(module):
             yield from (cell for cell in cells if isinstance(cell, Dispatcher))
 
 
-found = {id(d): d for module in (kernels, mec_kernels, flood_kernel, safety_kernel)
+found = {id(d): d for module in (kernels, mec_kernels, flood_kernel, safety_kernel, coverage_controllers)
          for d in dispatchers(module)}
 never = sorted(
     d.py_func.__qualname__
