@@ -180,3 +180,36 @@ def test_the_coverage_scenarios_run_and_report_the_cost(tmp_path, name):
     grid = np.stack(np.meshgrid(xs, ys), -1).reshape(-1, 2)  # the region is a square: every point inside
     nearest = ((grid[:, None, :] - final[None]) ** 2).sum(-1).min(axis=1)
     assert math.isclose(float(nearest.mean()), metrics["coverage_cost_m2"], rel_tol=0.01)
+
+
+@pytest.mark.slow
+def test_a_recorded_coverage_run_carries_its_cost_ratio(tmp_path):
+    """``--record mcap`` of a coverage run: ``/metric`` is H / H_ref of every tick, computed here from
+    the trajectory (the nearest robot of every quadrature point, summed with its weight)."""
+    import yaml
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    from swarm.cli import main
+    from swarm.scenarios.results import read_trajectory
+
+    data = yaml.safe_load((ROOT / "scenarios" / "coverage" / "complete-lloyd_flood.yaml").read_text())
+    data["sim"]["duration_s"] = 3.0
+    path = tmp_path / "short.yaml"
+    path.write_text(yaml.safe_dump(data))
+    out = tmp_path / "out"
+    assert main(["run", str(path), "--out", str(out), "--quiet", "--record", "mcap"]) in (0, 1)
+    metrics = json.loads((out / "metrics.json").read_text())
+    _, poses, _ = read_trajectory(out / "trajectory.jsonl")
+    points, weights = tasks.parse_section(data["task"]).quadrature()
+    expected = []
+    for frame in poses[..., :2]:
+        nearest = np.array([min(float(((q - p) ** 2).sum()) for p in frame) for q in points])
+        expected.append(float(nearest @ weights) / metrics["reference_cost_m2"])
+    with open(out / "recording.mcap", "rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        recorded = [
+            m.data for _, channel, _, m in reader.iter_decoded_messages() if channel.topic == "/metric"
+        ]
+    assert len(recorded) == len(poses) == 61
+    assert recorded == pytest.approx(expected, rel=1e-12)

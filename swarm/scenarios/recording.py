@@ -12,7 +12,7 @@
     /robot_<i>/cmd_vel geometry_msgs/msg/TwistStamped       robot i's applied command (v, w): from
                                                             the wheel speeds the server applied, or
                                                             (kinematic engine) from its motion
-    /metric            std_msgs/msg/Float64                 the success metric over the live robots
+    /metric            std_msgs/msg/Float64                 the success metric (live robots; a task: its own)
 and ``/faults`` (std_msgs/msg/String, a JSON object per fault, at the tick it happened) and the run's
 ``metrics.json`` as MCAP metadata ``outcome``.
 
@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from swarm.core import metrics
+from swarm.core import metrics, tasks
 
 STAMPED = """std_msgs/Header header
 ================================================================================
@@ -211,9 +211,13 @@ def _run(out_dir: Path):
     schedule = LinkFaults.from_scenario(scenario) if scenario.faults else None
     adjacency = scenario.adjacency()
     live = (outcome.get("faults") or {}).get("live_robots") or list(range(count))
-    values = (
-        metrics.METRICS[outcome["metric"]](poses[:, live, :2]) if len(live) > 1 else np.zeros(len(times_s))
-    )
+    series = tasks.get(scenario.task.kind).series  # a task's own metric (every body), or the success one
+    if series is not None:
+        values = series(poses[..., :2], scenario.task)
+    elif len(live) > 1:
+        values = metrics.METRICS[outcome["metric"]](poses[:, live, :2])
+    else:
+        values = np.zeros(len(times_s))
 
     def edges(tick: int) -> tuple[list, list]:
         from swarm.core import graphs

@@ -45,14 +45,14 @@ def formation_pictures(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from swarm.core.tasks.formation import bottleneck_distance
+    from swarm.core.tasks.formation import bottleneck_series
     from swarm.scenarios.report import plot_data, run_title
 
     slots = np.asarray(outcome["slots"])
     positions = poses[..., :2]
     title = run_title(scenario)
     fig, ax = plt.subplots(figsize=(7.5, 4.5), dpi=110)
-    values = [bottleneck_distance(frame, slots) for frame in positions]
+    values = bottleneck_series(positions, scenario.task)
     ax.plot(times_s, values, color="black", lw=2, label="bottleneck distance")[0].set_gid("judged")
     ax.axhline(
         outcome["threshold"], color="tab:green", ls=":", label=f"tolerance {outcome['threshold']:g} m"
@@ -111,14 +111,14 @@ def coverage_pictures(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from swarm.core.tasks.coverage import locational_cost
+    from swarm.core.tasks.coverage import ratio_series
     from swarm.scenarios.report import plot_data, run_title
 
     section = scenario.task
     points, weights = section.quadrature()
     positions = poses[..., :2]
     title = run_title(scenario)
-    ratio = locational_cost(positions, points, weights) / outcome["reference_cost_m2"]
+    ratio = ratio_series(positions, section)
     fig, ax = plt.subplots(figsize=(7.5, 4.5), dpi=110)
     ax.plot(times_s, ratio, color="black", lw=2, label="H / H_ref")[0].set_gid("judged")
     threshold = outcome["threshold"]

@@ -230,6 +230,13 @@ def reference_cost(section: CoverageSection, count: int) -> float:
     return reference(section, count)[0]
 
 
+def ratio_series(positions: np.ndarray, section: CoverageSection) -> np.ndarray:
+    """``(T,)`` ``H / H_ref`` of each frame of ``positions (T, N, 2)``."""
+    points, weights = section.quadrature()
+    count = np.asarray(positions).shape[1]
+    return locational_cost(positions, points, weights) / reference_cost(section, count)
+
+
 REPORT_TIMES_S = (5.0, 10.0, 20.0, 40.0)
 """The times at which ``outcome`` reports ``H / H_ref`` (those within the run)."""
 
@@ -240,10 +247,8 @@ def outcome(times_s: np.ndarray, positions: np.ndarray, section: CoverageSection
     its time; the first time within it (held or not); H and H_ref in m^2."""
     positions = np.asarray(positions, dtype=np.float64)
     times_s = np.asarray(times_s, dtype=np.float64)
-    points, weights = section.quadrature()
-    cost = locational_cost(positions, points, weights)
     h_ref = reference_cost(section, positions.shape[1])
-    ratio = cost / h_ref
+    ratio = ratio_series(positions, section)
     within = ratio <= 1.0 + section.tolerance
     time_s = settle_time(times_s, within, section.hold_s)
     first = np.flatnonzero(within)
@@ -260,7 +265,7 @@ def outcome(times_s: np.ndarray, positions: np.ndarray, section: CoverageSection
         "ratio_at_s": {
             f"{t:g}": float(np.interp(t, times_s, ratio)) for t in REPORT_TIMES_S if t <= times_s[-1]
         },
-        "coverage_cost_m2": float(cost[-1]),
+        "coverage_cost_m2": float(ratio[-1] * h_ref),
         "reference_cost_m2": h_ref,
         "lower_bound_s": None,
         "ratio_to_lower_bound": None,
@@ -280,6 +285,7 @@ COVERAGE = register(
         bound="reference",
         bound_s=None,
         reference=reference_cost,
+        series=ratio_series,
         reward="none yet (issue 20: the RL environments are rendezvous only)",
         plot="swarm.scenarios.task_report:coverage_pictures",
         outcome=outcome,

@@ -211,6 +211,12 @@ def conflicts(positions: np.ndarray, slots: np.ndarray) -> int:
     return int(len(nearest) - len(np.unique(nearest)))
 
 
+def bottleneck_series(positions: np.ndarray, section: FormationSection) -> np.ndarray:
+    """``(T,)`` the bottleneck distance of each frame of ``positions (T, N, 2)`` (m)."""
+    slots = section.slot_positions(np.asarray(positions).shape[1])
+    return np.array([bottleneck_distance(frame, slots) for frame in positions])
+
+
 def outcome(times_s: np.ndarray, positions: np.ndarray, section: FormationSection, v_max_mps: float) -> dict:
     """The task's results from the axle positions ``(T, N, 2)``: success (``converged``), its time,
     the bound and their ratio, the metric (bottleneck distance) at the start and the end, the
@@ -252,5 +258,6 @@ FORMATION = register(
         reward="none yet (issue 20: the RL environments are rendezvous only)",
         plot="swarm.scenarios.task_report:formation_pictures",
         outcome=outcome,
+        series=bottleneck_series,
     )
 )

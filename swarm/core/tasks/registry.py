@@ -49,6 +49,9 @@ class Task:
     plot: str
     learned: tuple[str, ...] = ()
     outcome: Outcome | None = None
+    series: Callable[..., np.ndarray] | None = None
+    """``(positions (T, N, 2), section) -> (T,)``: the task's metric over a run (what its plot and the
+    recordings draw); None: the scenario's success metric (``swarm.core.metrics.METRICS``)."""
     reference: Callable[..., float] | None = None
     """``bound == "reference"``: ``(section, robot_count) -> value`` of the metric to compare with (its
     docstring says how it is found and that it is not a bound)."""
