@@ -213,3 +213,51 @@ def test_a_recorded_coverage_run_carries_its_cost_ratio(tmp_path):
         ]
     assert len(recorded) == len(poses) == 61
     assert recorded == pytest.approx(expected, rel=1e-12)
+
+
+# ----------------------------------------------------------------------------- the PettingZoo environment
+
+
+@pytest.mark.parametrize(
+    "overrides", [{"robots": 4, "topology": "line"}, {"robots": 5, "density": "gaussian"}]
+)
+def test_the_coverage_env_passes_pettingzoos_checks(overrides):
+    from pettingzoo.test import api_test, parallel_api_test, parallel_seed_test
+
+    from swarm.rl import coverage_v0
+
+    parallel_api_test(coverage_v0.parallel_env(**overrides), num_cycles=100)
+    parallel_seed_test(lambda: coverage_v0.parallel_env(**overrides))
+    api_test(coverage_v0.env(**overrides), num_cycles=20)
+
+
+def test_the_coverage_env_rewards_the_cost_decrease_and_hears_only_neighbours():
+    """The Lloyd expert's episode: the return is (H_0 - H_end) / H_ref plus the bonus, H computed here from
+    the global state; each robot's neighbour slots hold its line neighbours' axles of one tick before."""
+    from swarm.rl import coverage_v0
+
+    env = coverage_v0.parallel_env(robots=5, topology="line", action_repeat=1)
+    observations, _ = env.reset(seed=3)
+    points, weights = env.section.quadrature()
+
+    def cost() -> float:
+        axles = env.state().reshape(5, 4)[:, :2].astype(np.float64)
+        return float((((points[:, None, :] - axles[None]) ** 2).sum(-1).min(axis=1)) @ weights)
+
+    first, total, previous = cost(), 0.0, env.state().reshape(5, 4)[:, :2]
+    assert all(not obs[6:].any() for obs in observations.values())  # nothing heard at tick 0
+    while env.agents:
+        observations, rewards, terminations, _, infos = env.step(env.expert_actions())
+        total += rewards["robot_0"]
+        now = env.state().reshape(5, 4)[:, :2]
+        for i in range(5):
+            slots = observations[f"robot_{i}"][6:].reshape(4, 3)
+            neighbours = [j for j in (i - 1, i + 1) if 0 <= j < 5]
+            assert np.allclose(
+                slots[: len(neighbours), :2], (previous[neighbours] - now[i]) / env.config.side, atol=1e-6
+            )
+            assert slots[: len(neighbours), 2].tolist() == [1.0] * len(neighbours)
+            assert not slots[len(neighbours) :].any()
+        previous = now
+    assert terminations["robot_0"] and infos["robot_0"]["ratio"] <= 1.05
+    assert total == pytest.approx((first - cost()) / env.h_ref + 1.0, rel=1e-5)

@@ -286,7 +286,7 @@ COVERAGE = register(
         bound_s=None,
         reference=reference_cost,
         series=ratio_series,
-        reward="none yet (issue 20: the RL environments are rendezvous only)",
+        reward="swarm.rl.coverage_v0:CoverageParallelEnv.step",
         plot="swarm.scenarios.task_report:coverage_pictures",
         outcome=outcome,
     )
