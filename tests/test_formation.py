@@ -188,15 +188,16 @@ def test_decentralized_robot_zero_ignores_robots_beyond_k_hops_for_k_ticks():
     assert not np.array_equal(messages[hops + 1], moved_messages[hops + 1])  # tick k+1: robot k+1 heard of
 
 
+@pytest.mark.parametrize("translation_free", [False, True])
 @pytest.mark.parametrize("graph", ["line", "cycle", "complete"])
-def test_the_per_robot_baseline_computes_what_the_batched_one_computes(graph):
+def test_the_per_robot_baseline_computes_what_the_batched_one_computes(graph, translation_free):
     """``OnboardCaptFlood``, one instance per robot keeping its own messages, fed the engine's poses,
     against ``CaptFlood`` in ``KinematicSim``: the same commands and messages, bit for bit."""
     from swarm.sim.formation_onboard import OnboardCaptFlood
 
     count = 7
     rng = np.random.default_rng(5)
-    section = FormationSection(slots={"line": {"spacing_m": 0.6}})
+    section = FormationSection(slots={"line": {"spacing_m": 0.6}}, translation_free=translation_free)
     poses = np.concatenate([rng.uniform(-3, 3, (1, count, 2)), rng.uniform(-np.pi, np.pi, (1, count, 1))], -1)
     adjacency = {"line": graphs.line, "cycle": graphs.cycle, "complete": graphs.complete}[graph](count)
     robot = RobotParams()
@@ -337,3 +338,64 @@ def test_the_central_capt_expert_forms_the_circle_on_pybullet(tmp_path):
     assert metrics["ratio_to_lower_bound"] >= 1.0
     record = json.loads((out / "logs" / "central.json").read_text())
     assert record["controller"] == "capt" and record["incomplete_ticks"] == 0
+
+
+# ----------------------------------------------------------------------------- translation free
+
+
+def _exact_translation_free(positions: np.ndarray, slots: np.ndarray) -> float:
+    """``min over t and pi of max_i |x_i - s_pi(i) - t|``: for each bijection, the enclosing circle of the
+    differences (its radius is the least max distance over t), by brute force over the bijections."""
+    from swarm.core.metrics import minimum_enclosing_circle
+
+    return min(
+        minimum_enclosing_circle(positions - slots[list(chosen)])[1]
+        for chosen in itertools.permutations(range(len(slots)))
+    )
+
+
+def test_a_shifted_shuffled_formation_is_found_at_distance_zero():
+    slots = FormationSection(slots={"grid": {"spacing_m": 0.7}}).slot_positions(6)
+    positions = slots[[3, 0, 5, 1, 4, 2]] + [4.0, -2.5]
+    shift, value = formation.best_translation(positions, slots)
+    assert value < 1e-9 and np.allclose(shift, [4.0, -2.5])
+    assert formation.translation_free_lower_bound(positions, slots) == 0.0
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_the_translation_free_bound_is_below_the_exact_least_distance(seed):
+    """Random 5-robot cases: lower bound <= exact (brute force over the 120 bijections) <= the placement
+    the controllers use; the lower bound within 25% of the exact value."""
+    rng = np.random.default_rng(seed)
+    slots = FormationSection(slots={"circle": {"radius_m": 1.0}}).slot_positions(5)
+    positions = rng.uniform(-3, 3, (5, 2)) + rng.uniform(-10, 10, 2)
+    exact = _exact_translation_free(positions, slots)
+    lower = formation.translation_free_lower_bound(positions, slots)
+    _, upper = formation.best_translation(positions, slots)
+    assert lower <= exact + 1e-9 <= upper + 2e-9
+    assert lower >= 0.75 * exact
+
+
+@pytest.mark.parametrize("controller", [CaptExpert, CaptFlood])
+def test_a_translation_free_formation_forms_where_the_swarm_is(controller):
+    """Starts 6 m off the slots' centre: the translation-free formation succeeds (no faster than its bound,
+    no conflicts) near the starts, sooner than the fixed one."""
+    rng = np.random.default_rng(2)
+    count = 7
+    fixed = FormationSection(slots={"circle": {"radius_m": 1.0}})
+    free = FormationSection(slots={"circle": {"radius_m": 1.0}}, translation_free=True)
+    poses = np.concatenate([rng.uniform(4, 8, (3, count, 2)), rng.uniform(-np.pi, np.pi, (3, count, 1))], -1)
+    kwargs = {"robot_count": count} if controller is CaptFlood else {}
+    times = {}
+    for name, section in (("fixed", fixed), ("free", free)):
+        trajectory = _run(controller, poses, section, graphs.line(count), seconds=40.0, **kwargs)
+        stamps = np.arange(len(trajectory)) * 0.05
+        times[name] = []
+        for b in range(len(poses)):
+            outcome = formation.outcome(stamps, trajectory[:, b, :, :2], section, 0.5)
+            assert outcome["converged"] and outcome["conflicts"] == 0, (name, b)
+            assert outcome["ratio_to_lower_bound"] >= 1.0
+            times[name].append(outcome["convergence_time_s"])
+            if name == "free":
+                assert np.linalg.norm(np.mean(outcome["slots"], axis=0) - poses[b, :, :2].mean(axis=0)) < 1.5
+    assert max(times["free"]) < min(times["fixed"])

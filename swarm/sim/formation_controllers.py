@@ -23,7 +23,7 @@ import numpy as np
 
 from swarm.core.experts import drive_toward_velocity
 from swarm.core.robot import RobotParams
-from swarm.core.tasks.formation import FormationSection, capt_assignment
+from swarm.core.tasks.formation import FormationSection, capt_assignment, placed_slots
 from swarm.sim.links import Links
 
 
@@ -48,7 +48,10 @@ class CaptExpert:
         batch, count = poses.shape[:2]
         if self.targets is None or self.targets.shape[:2] != (batch, count):
             slots = self.section.slot_positions(count)
-            self.targets = np.stack([slots[capt_assignment(poses[b, :, :2], slots)] for b in range(batch)])
+            placed = [placed_slots(self.section, poses[b, :, :2], slots) for b in range(batch)]
+            self.targets = np.stack(
+                [placed[b][capt_assignment(poses[b, :, :2], placed[b])] for b in range(batch)]
+            )
         delta = self.targets - poses[..., :2]
         remaining = np.sqrt((delta * delta).sum(-1))  # (B, N)
         largest = remaining.max(axis=-1, keepdims=True)
@@ -112,8 +115,10 @@ class CaptFlood:
         assert self._targets is not None
         for b, i in zip(*np.nonzero(np.any(known != self._known, axis=-1)), strict=True):
             members = np.flatnonzero(known[b, i])
-            assignment = capt_assignment(memory[b, i, members, 1:], self.slots)
-            self._targets[b, i] = self.slots[assignment[np.searchsorted(members, i)]]
+            starts = memory[b, i, members, 1:]
+            slots = placed_slots(self.section, starts, self.slots)
+            assignment = capt_assignment(starts, slots)
+            self._targets[b, i] = slots[assignment[np.searchsorted(members, i)]]
             self._known[b, i] = known[b, i]
         u_world = drive_toward_velocity(
             poses, self._targets, self.robot.v_max_mps, self.control_period_s, self.reverse

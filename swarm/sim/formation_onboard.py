@@ -14,7 +14,7 @@ import numpy as np
 
 from swarm.core.experts import drive_toward_velocity
 from swarm.core.robot import RobotParams
-from swarm.core.tasks.formation import FormationSection, capt_assignment
+from swarm.core.tasks.formation import FormationSection, capt_assignment, placed_slots
 
 
 def first_memory(count: int, robot_id: int, pose: np.ndarray) -> np.ndarray:
@@ -53,6 +53,7 @@ class OnboardCaptFlood:
         self.robot_id = int(robot_id)
         self.reverse = bool(reverse)
         self.message_dim = 3 * self.count
+        self.section = section
         self.slots = section.slot_positions(self.count)
         self._memory: np.ndarray | None = None  # (N, 3)
         self._known = np.zeros(self.count, dtype=bool)  # what the target was computed from
@@ -71,8 +72,10 @@ class OnboardCaptFlood:
         known = merge_starts(memory, neighbour_messages)
         if not np.array_equal(known, self._known):
             members = np.flatnonzero(known)
-            assignment = capt_assignment(memory[members, 1:], self.slots)
-            self._target = self.slots[assignment[np.searchsorted(members, self.robot_id)]]
+            starts = memory[members, 1:]
+            slots = placed_slots(self.section, starts, self.slots)
+            assignment = capt_assignment(starts, slots)
+            self._target = slots[assignment[np.searchsorted(members, self.robot_id)]]
             self._known = known
         u_world = drive_toward_velocity(
             pose, self._target, self.robot.v_max_mps, self.control_period_s, self.reverse

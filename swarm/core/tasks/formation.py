@@ -16,8 +16,23 @@ distance of the initial axle positions. Proof: at a time t of success the slots 
 define a bijection pi with ``|x_i(t) - s_pi(i)| <= tol``; axles move no faster than ``v_max``
 (``v = (vL + vR) / 2``), so ``|x_i(0) - s_pi(i)| <= tol + v_max t`` for every i, and
 ``B* <= max_i |x_i(0) - s_pi(i)| <= tol + v_max t``. It is exact for holonomic points starting on
-the lines to their slots: the bottleneck robot drives straight at ``v_max``. (Translation-free
-variant, not built yet: the bound is the same with ``B*`` minimized over translations too.)
+the lines to their slots: the bottleneck robot drives straight at ``v_max``.
+
+Translation-free variant (``translation_free: true``): the slots may be placed anywhere, shifted by one
+translation t. Success: one placement ``s + t`` holds exactly one axle per slot within tolerance, from
+some time to the end, held ``hold_s``; t is :func:`best_translation` of the final frame (a placement that
+moves while it holds is not the rule: a formation sits still). The least distance is
+``B_tf(x) = min_t bottleneck(x, s + t)``; for a fixed assignment pi the best t is the centre of the
+minimum enclosing circle of the differences ``x_i - s_pi(i)`` and ``B_tf`` its radius, minimized over
+pi. :func:`best_translation` alternates the two steps (bottleneck assignment, enclosing circle) from the
+mean difference: a translation that achieves its value, so an upper bound of ``B_tf`` (and the placement
+the controllers drive to). The bound: ``max(0, LB - tolerance) / v_max`` with ``LB <= B_tf(x(0))``
+(:func:`translation_free_lower_bound`), by the same argument with t fixed at the success time's witness:
+``B_tf(x(0)) <= bottleneck(x(0), s + t) <= tol + v_max T``. ``LB`` is rigorous but not exact:
+``g(t) = max(max_i min_j |x_i - s_j - t|, max_j min_i |x_i - s_j - t|)`` is at most
+``bottleneck(x, s + t)`` (every robot is matched to some slot and every slot to some robot) and, like it,
+1-Lipschitz in t; any t with ``bottleneck <= U`` (U the upper bound) lies within U of some ``x_0 - s_j``,
+so the least g on a grid of spacing h over those discs, less ``h / sqrt 2``, bounds ``B_tf`` from below.
 """
 
 from __future__ import annotations
@@ -117,6 +132,7 @@ class FormationSection(_Strict):
 
     kind: Literal["formation"] = "formation"
     slots: SlotsSpec
+    translation_free: bool = Field(False, description="the slots may be shifted anywhere (one translation)")
     tolerance_m: float = Field(0.1, gt=0, description="a slot holds a robot whose axle is this close")
     hold_s: float = Field(2.0, ge=0, description="success must hold this long, to the end of the run")
 
@@ -182,15 +198,69 @@ def bottleneck_distance(positions: np.ndarray, slots: np.ndarray) -> float:
     return float(distances(positions, slots)[np.arange(len(assignment)), assignment].max(initial=0.0))
 
 
+def best_translation(positions: np.ndarray, slots: np.ndarray, rounds: int = 32) -> tuple[np.ndarray, float]:
+    """``(t (2,), value)``: a translation of the slots and the bottleneck distance it achieves, from the
+    mean difference by alternating the CAPT assignment and the enclosing circle of the differences
+    (module docstring); stops when a round no longer lowers the value. K <= M positions."""
+    from swarm.core.metrics import minimum_enclosing_circle
+
+    positions = np.asarray(positions, dtype=np.float64)
+    slots = np.asarray(slots, dtype=np.float64)
+    shift = positions.mean(axis=0) - slots.mean(axis=0)
+    value = bottleneck_distance(positions, slots + shift)
+    for _ in range(rounds):
+        assignment = capt_assignment(positions, slots + shift)
+        centre, radius = minimum_enclosing_circle(positions - slots[assignment])
+        if not radius < value - 1e-12:
+            break
+        shift, value = np.asarray(centre, dtype=np.float64), bottleneck_distance(positions, slots + centre)
+    return shift, float(value)
+
+
+def placed_slots(section: FormationSection, positions: np.ndarray, slots: np.ndarray) -> np.ndarray:
+    """The slots the robots at ``positions`` (the starts, or those a robot knows) drive to: ``slots``, or
+    for a translation-free formation ``slots + t`` with t from :func:`best_translation`."""
+    if not section.translation_free:
+        return slots
+    return slots + best_translation(positions, slots)[0]
+
+
+def translation_free_lower_bound(positions: np.ndarray, slots: np.ndarray, cells: int = 24) -> float:
+    """A rigorous lower bound of ``min_t bottleneck(x, s + t)`` (module docstring): the least g over a grid
+    of ``cells`` per disc diameter, less half the grid's diagonal."""
+    positions = np.asarray(positions, dtype=np.float64)
+    slots = np.asarray(slots, dtype=np.float64)
+    _, upper = best_translation(positions, slots)
+    if upper == 0.0:
+        return 0.0
+    spacing = 2.0 * upper / cells
+    offsets = (np.arange(cells + 1) - cells / 2) * spacing
+    disc = np.stack(np.meshgrid(offsets, offsets), -1).reshape(-1, 2)
+    disc = disc[(disc * disc).sum(-1) <= (upper + spacing) ** 2]
+    least = math.inf
+    for centre in positions[0] - slots:  # t within `upper` of x_0 - s_j for some j
+        shifts = centre + disc  # (P, 2)
+        delta = positions[None, :, None, :] - slots[None, None, :, :] - shifts[:, None, None, :]
+        gaps = np.sqrt((delta * delta).sum(-1))  # (P, K robots, M slots)
+        g = np.maximum(gaps.min(axis=2).max(axis=1), gaps.min(axis=1).max(axis=1))
+        least = min(least, float(g.min()))
+    return max(0.0, least - spacing / math.sqrt(2.0))
+
+
 def lower_bound_s(
     initial_positions: np.ndarray,
     section: FormationSection,
     v_max_mps: float,
     threshold_m: float | None = None,
 ) -> float:
-    """``max(0, B* - tolerance) / v_max`` (module docstring: the proof)."""
+    """``max(0, B* - tolerance) / v_max`` (module docstring: the proof); translation free, ``B*`` replaced
+    by a rigorous lower bound of ``min_t bottleneck`` (:func:`translation_free_lower_bound`)."""
     slots = section.slot_positions(len(initial_positions))
-    return max(0.0, bottleneck_distance(initial_positions, slots) - section.tolerance_m) / v_max_mps
+    if section.translation_free:
+        least = translation_free_lower_bound(initial_positions, slots)
+    else:
+        least = bottleneck_distance(initial_positions, slots)
+    return max(0.0, least - section.tolerance_m) / v_max_mps
 
 
 def occupied(positions: np.ndarray, slots: np.ndarray, tolerance_m: float) -> np.ndarray:
@@ -211,9 +281,17 @@ def conflicts(positions: np.ndarray, slots: np.ndarray) -> int:
     return int(len(nearest) - len(np.unique(nearest)))
 
 
+def judged_slots(positions: np.ndarray, section: FormationSection) -> np.ndarray:
+    """The slots a run ``(T, N, 2)`` is judged against: the section's, or translation free, the section's
+    shifted by the best translation of the final frame (one placement, held: the success rule)."""
+    positions = np.asarray(positions, dtype=np.float64)
+    slots = section.slot_positions(positions.shape[1])
+    return placed_slots(section, positions[-1], slots)
+
+
 def bottleneck_series(positions: np.ndarray, section: FormationSection) -> np.ndarray:
-    """``(T,)`` the bottleneck distance of each frame of ``positions (T, N, 2)`` (m)."""
-    slots = section.slot_positions(np.asarray(positions).shape[1])
+    """``(T,)`` the bottleneck distance of each frame of ``positions (T, N, 2)`` to the judged slots (m)."""
+    slots = judged_slots(positions, section)
     return np.array([bottleneck_distance(frame, slots) for frame in positions])
 
 
@@ -223,7 +301,7 @@ def outcome(times_s: np.ndarray, positions: np.ndarray, section: FormationSectio
     expert's assignment of the start and the conflicts at the end."""
     positions = np.asarray(positions, dtype=np.float64)
     count = positions.shape[1]
-    slots = section.slot_positions(count)
+    slots = judged_slots(positions, section)
     ok = occupied(positions, slots, section.tolerance_m)
     time_s = settle_time(times_s, ok, section.hold_s)
     bound = lower_bound_s(positions[0], section, v_max_mps)
@@ -233,13 +311,18 @@ def outcome(times_s: np.ndarray, positions: np.ndarray, section: FormationSectio
         "converged": time_s is not None,
         "convergence_time_s": time_s,
         "hold_s": section.hold_s,
-        "initial_metric": bottleneck_distance(positions[0], slots),
+        "initial_metric": (
+            best_translation(positions[0], slots)[1]
+            if section.translation_free
+            else bottleneck_distance(positions[0], slots)
+        ),
         "final_metric": bottleneck_distance(positions[-1], slots),
         "lower_bound_s": bound,
         "ratio_to_lower_bound": time_s / bound if time_s is not None and bound > 0 else None,
         "assignment": capt_assignment(positions[0], slots).tolist(),
         "conflicts": conflicts(positions[-1], slots),
         "slots": slots.tolist(),
+        "translation_m": (slots - section.slot_positions(count))[0].tolist(),
     }
 
 
