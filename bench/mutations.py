@@ -326,6 +326,30 @@ MUTATIONS = [
         "",
         ("tests/test_contract.py",),
     ),
+    Mutation(
+        "coverage-flood-ages-not-counted",
+        "the batched lloyd_flood takes a heard position without aging it a hop (its per-robot form ages it)",
+        "swarm/sim/coverage_controllers.py",
+        "            age = np.where(theirs[..., 0] > 0.0, theirs[..., 0] + 1.0, 0.0)\n",
+        "            age = theirs[..., 0]\n",
+        ("tests/test_contract.py",),
+    ),
+    Mutation(
+        "coverage-cell-ties-to-nobody",
+        "a point as near another robot counts in no cell (the rule: in every cell it is nearest to)",
+        "swarm/sim/coverage_controllers.py",
+        "                    if ex * ex + ey * ey < mine:\n",
+        "                    if ex * ex + ey * ey <= mine:\n",
+        ("tests/test_coverage.py",),
+    ),
+    Mutation(
+        "coverage-empty-cell-stays",
+        "a batched robot with an empty cell gets no target (the rule: head for the density's centroid)",
+        "swarm/sim/coverage_controllers.py",
+        "    return np.where(mass > 0.0, sums[..., 1:] / np.where(mass > 0.0, mass, 1.0), fallback)\n",
+        "    return np.where(mass > 0.0, sums[..., 1:] / np.where(mass > 0.0, mass, 1.0), np.nan)\n",
+        ("tests/test_contract.py",),
+    ),
 ]
 
 
