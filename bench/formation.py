@@ -7,7 +7,10 @@ start graph is connected), slots on a circle 0.5 m apart (radius at least 1 m), 
 median and p95 of success time / lower bound (``swarm.core.tasks.formation.lower_bound_s``), the
 success rate and the conflicts at the end. Both controllers run on the same starts.
 
-    python bench/formation.py --out bench/results --starts 20
+    python bench/formation.py --out bench/results --starts 20 --loss 0.2 0.5
+
+A random graph is one connected G(N, p) per start (``swarm.core.topologies.draw``); ``--loss`` adds
+``capt_flood`` cells on the cycle and the line under that packet loss, on the same starts.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from swarm.core import graphs, topologies
+from swarm.core.faults import LinkFaults
 from swarm.core.initial_poses import box_for, random_poses
 from swarm.core.robot import RobotParams
 from swarm.core.tasks import formation
@@ -29,7 +33,7 @@ from swarm.core.tasks.formation import FormationSection
 from swarm.sim.formation_controllers import CaptExpert, CaptFlood
 from swarm.sim.kinematic import KinematicSim
 
-GRAPHS = ("complete", "cycle", "line", "disk")
+GRAPHS = ("complete", "cycle", "line", "random", "disk")
 SIZES = (6, 12, 24, 50)
 DISK_RADIUS_M = 2.0
 CONTROL_PERIOD_S = 0.05
@@ -53,7 +57,7 @@ def starts(graph: str, count: int, number: int, seed: int) -> np.ndarray:
     return np.stack(chosen[:number])
 
 
-def run_cell(graph: str, count: int, poses: np.ndarray, controller_name: str) -> dict:
+def run_cell(graph: str, count: int, poses: np.ndarray, controller_name: str, loss: float = 0.0) -> dict:
     robot = RobotParams()
     section = section_for(count)
     slots = section.slot_positions(count)
@@ -61,10 +65,13 @@ def run_cell(graph: str, count: int, poses: np.ndarray, controller_name: str) ->
         controller: CaptExpert | CaptFlood = CaptExpert(robot, CONTROL_PERIOD_S, section)
     else:
         controller = CaptFlood(robot, CONTROL_PERIOD_S, section, count)
-    graph_args = (
-        {"disk_radius_m": DISK_RADIUS_M} if graph == "disk" else {"adjacency": topologies.build(graph, count)}
-    )
-    sim = KinematicSim(robot, controller, CONTROL_PERIOD_S, poses, **graph_args)
+    if graph == "disk":
+        graph_args: dict = {"disk_radius_m": DISK_RADIUS_M}
+    else:
+        rng = np.random.default_rng(count)  # a random kind: one connected graph per start
+        graph_args = {"adjacency": np.stack([topologies.draw(graph, count, rng) for _ in range(len(poses))])}
+    faults = LinkFaults([{"kind": "packet_loss", "p": loss}], CONTROL_PERIOD_S, seed=count) if loss else None
+    sim = KinematicSim(robot, controller, CONTROL_PERIOD_S, poses, link_faults=faults, **graph_args)
     hold_ticks = round(section.hold_s / CONTROL_PERIOD_S)
     ok = [formation.occupied(sim.poses[..., :2], slots, section.tolerance_m)]
     began = time.perf_counter()
@@ -88,6 +95,7 @@ def run_cell(graph: str, count: int, poses: np.ndarray, controller_name: str) ->
         "graph": graph,
         "robots": count,
         "controller": controller_name,
+        "loss": loss,
         "starts": len(poses),
         "success": float(np.mean(~np.isnan(ratios_array))),
         "median_ratio": float(np.median(done)) if len(done) else None,
@@ -103,7 +111,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("bench/results"))
     parser.add_argument("--starts", type=int, default=20)
     parser.add_argument("--sizes", type=int, nargs="+", default=list(SIZES))
-    parser.add_argument("--graphs", nargs="+", default=list(GRAPHS))
+    parser.add_argument("--graphs", nargs="+", default=list(GRAPHS), choices=GRAPHS)
+    parser.add_argument("--loss", type=float, nargs="*", default=[], help="capt_flood cells, cycle and line")
     args = parser.parse_args(argv)
     rows = []
     for graph in args.graphs:
@@ -113,11 +122,20 @@ def main(argv: list[str] | None = None) -> int:
                 row = run_cell(graph, count, poses, controller_name)
                 rows.append(row)
                 print(json.dumps(row), flush=True)
+    lossy = []
+    for loss in args.loss:
+        for graph in ("cycle", "line"):
+            for count in args.sizes:
+                poses = starts(graph, count, args.starts, seed=1000 * count + GRAPHS.index(graph))
+                row = run_cell(graph, count, poses, "capt_flood", loss)
+                lossy.append(row)
+                print(json.dumps(row), flush=True)
     args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "formation.json").write_text(json.dumps(rows, indent=1) + "\n")
+    (args.out / "formation.json").write_text(json.dumps(rows + lossy, indent=1) + "\n")
     lines = [
-        f"Formation, {args.starts} starts per cell: `python bench/formation.py --out {args.out}"
-        f" --starts {args.starts}`. Ratio: success time (held 2 s) / lower bound (B* - tol) / v_max.",
+        f"Formation, {args.starts} starts per cell: `python bench/formation.py"
+        f" {' '.join(argv if argv is not None else sys.argv[1:])}`."
+        " Ratio: success time (held 2 s) / lower bound (B* - tol) / v_max.",
         "",
         "| graph | N | capt median / p95 | capt success | capt_flood median / p95 | capt_flood success"
         " | conflicts (capt, flood) |",
@@ -136,6 +154,17 @@ def main(argv: list[str] | None = None) -> int:
             lines.append(
                 f"| {graph} | {count} | {ratio(expert)} | {expert['success']:.0%} | {ratio(flood)}"
                 f" | {flood['success']:.0%} | {expert['conflicts']}, {flood['conflicts']} |"
+            )
+    if lossy:
+        lines += ["", "`capt_flood` under packet loss (the same starts):", ""]
+        lines += ["| graph | N | loss | median / p95 | success | conflicts |", "|---|---|---|---|---|---|"]
+        for row in lossy:
+            median = "-"
+            if row["median_ratio"] is not None:
+                median = f"{row['median_ratio']:.3f} / {row['p95_ratio']:.3f}"
+            lines.append(
+                f"| {row['graph']} | {row['robots']} | {row['loss']:.0%} | {median} | {row['success']:.0%}"
+                f" | {row['conflicts']} |"
             )
     (args.out / "formation.md").write_text("\n".join(lines) + "\n")
     return 0
