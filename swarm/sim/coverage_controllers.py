@@ -33,7 +33,7 @@ import numpy as np
 from swarm.core.experts import drive_toward_velocity
 from swarm.core.robot import RobotParams
 from swarm.core.tasks.coverage import CoverageSection, density_centroid
-from swarm.sim.links import Links
+from swarm.sim.links import Links, heard_slots
 
 
 @numba.njit(cache=True)
@@ -184,13 +184,8 @@ class LloydFlood(_Coverage):
         own = np.arange(count)
         memory[:, own, own, 0] = 1.0
         memory[:, own, own, 1:] = poses[..., :2]
-        envs = np.arange(batch)[:, None]
-        for slot in range(heard.index.shape[2]):
-            sender = heard.index[:, :, slot]  # (B, N), -1: none
-            valid = sender >= 0
-            if not valid.any():
-                continue
-            theirs = inbox[envs, np.where(valid, sender, 0)].reshape(batch, count, count, 3)
+        for valid, messages in heard_slots(inbox, heard):
+            theirs = messages.reshape(batch, count, count, 3)
             age = np.where(theirs[..., 0] > 0.0, theirs[..., 0] + 1.0, 0.0)
             fresher = valid[..., None] & (age > 0.0) & ((memory[..., 0] == 0.0) | (age < memory[..., 0]))
             memory[fresher, 0] = age[fresher]

@@ -24,7 +24,7 @@ import numpy as np
 from swarm.core.experts import drive_toward_velocity
 from swarm.core.robot import RobotParams
 from swarm.core.tasks.formation import FormationSection, capt_assignment, placed_slots
-from swarm.sim.links import Links
+from swarm.sim.links import Links, heard_slots
 
 
 class CaptExpert:
@@ -92,13 +92,8 @@ class CaptFlood:
         fresh = memory[:, own, own, 0] == 0.0  # (B, N): does not know itself yet
         memory[:, own, own, 0] = 1.0
         memory[:, own, own, 1:] = np.where(fresh[..., None], poses[..., :2], memory[:, own, own, 1:])
-        envs = np.arange(batch)[:, None]
-        for slot in range(heard.index.shape[2]):
-            sender = heard.index[:, :, slot]  # (B, N), -1: none
-            valid = sender >= 0
-            if not valid.any():
-                continue
-            theirs = inbox[envs, np.where(valid, sender, 0)].reshape(batch, count, count, 3)
+        for valid, messages in heard_slots(inbox, heard):
+            theirs = messages.reshape(batch, count, count, 3)
             new = valid[..., None] & (theirs[..., 0] != 0.0) & (memory[..., 0] == 0.0)
             memory[new] = theirs[new]
         return memory

@@ -64,3 +64,15 @@ class Links:
     def select(self, environments: np.ndarray) -> Links:
         dense = None if self._dense is None else self._dense[environments]
         return Links(self.index[environments], self.weight[environments], dense)
+
+
+def heard_slots(inbox: np.ndarray, heard: Links):
+    """Per neighbour slot, in slot order: ``(valid (B, N), messages (B, N, D))``, the message each robot
+    heard in that slot (``inbox[b, heard.index[b, i, slot]]``; rows without a sender hold the message of
+    column 0 and are not ``valid``). Slots nobody heard in are skipped."""
+    envs = np.arange(inbox.shape[0])[:, None]
+    for slot in range(heard.index.shape[2]):
+        sender = heard.index[:, :, slot]  # (B, N), -1: none
+        valid = sender >= 0
+        if valid.any():
+            yield valid, inbox[envs, np.where(valid, sender, 0)]
