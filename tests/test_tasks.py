@@ -134,3 +134,17 @@ def test_the_bound_is_not_beaten_by_the_expert(name):
         outcome = task_outcome(scenario, times, trajectory, scenario.adjacency())
         assert outcome["converged"], seed
         assert outcome["ratio_to_lower_bound"] >= 1.0
+
+
+def test_swarm_sweep_names_the_bench_of_another_tasks_controller(capsys):
+    """``swarm sweep`` is rendezvous's: a formation or coverage kind gets exit 2 and where to measure it."""
+    from swarm.cli import main
+
+    for kind, task, bench in (
+        ("capt_flood", "formation", "formation.py"),
+        ("lloyd_flood", "coverage", "coverage_kinematic.py"),
+    ):
+        assert main(["sweep", "--controllers", kind, "--sizes", "6", "--seeds", "1"]) == 2
+        error = capsys.readouterr().err
+        assert f"'{kind}' does task {task}; swarm sweep runs rendezvous only" in error
+        assert f"python bench/{bench}" in error

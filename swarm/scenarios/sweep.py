@@ -26,7 +26,7 @@ from swarm.core.initial_poses import box_for, random_poses
 from swarm.core.robot import RobotParams
 from swarm.scenarios.scenario import ScenarioError, default_model_path
 from swarm.sim import kernels
-from swarm.sim.controller_kinds import ControllerArgs, batched_controller, controller_kind
+from swarm.sim.controller_kinds import CONTROLLER_KINDS, ControllerArgs, batched_controller, controller_kind
 from swarm.sim.controllers import BatchedController
 from swarm.sim.kinematic import KinematicSim
 
@@ -45,6 +45,7 @@ SWEEP_CONTROLLERS: dict[str, tuple[str, dict]] = {
 """Sweep controller names -> (``swarm.sim.controller_kinds`` kind, options): ``mec_flood_forward`` is
 ``mec_flood`` without reversing."""
 CONTROLLERS = tuple(SWEEP_CONTROLLERS)
+_TASK_BENCH = {"formation": "formation.py", "coverage": "coverage_kinematic.py"}
 LOSS_CHUNK_STARTS = 50
 """Under packet loss, a cell's starts run in chunks of this many, chunk c with loss seed c: the
 loss draws (``swarm.core.faults``) are the same in every environment of one simulator."""
@@ -94,6 +95,12 @@ class SweepConfig:
                 raise ScenarioError(f"{source}: topologies: unknown topology '{topology}'")
         for controller in self.controllers:
             if controller not in CONTROLLERS:
+                kind = CONTROLLER_KINDS.get(controller)
+                if kind is not None and kind.task != "rendezvous":  # another task's: its bench measures it
+                    raise ScenarioError(
+                        f"{source}: controllers: '{controller}' does task {kind.task}; swarm sweep runs"
+                        f" rendezvous only (measure {kind.task} with python bench/{_TASK_BENCH[kind.task]})"
+                    )
                 raise ScenarioError(f"{source}: controllers: unknown controller '{controller}'")
         if "gnn" in self.controllers:
             if self.model is None:
