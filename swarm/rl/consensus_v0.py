@@ -29,6 +29,13 @@ from pettingzoo.utils.conversions import parallel_to_aec
 from swarm.rl.vector_env import ConsensusConfig, ConsensusVectorEnv, action_space, observation_space
 
 
+def global_state(poses: np.ndarray) -> np.ndarray:
+    """``(4 N,)`` float32: ``[x, y, cos th, sin th]`` of every robot (``state()`` of the parallel envs)."""
+    theta = poses[:, 2]
+    columns = (poses[:, 0], poses[:, 1], np.cos(theta), np.sin(theta))
+    return np.stack(columns, axis=-1).reshape(-1).astype(np.float32)
+
+
 class ConsensusParallelEnv(ParallelEnv):
     """N robots, each an agent with local observations and a shared reward; see the module docstring."""
 
@@ -82,10 +89,7 @@ class ConsensusParallelEnv(ParallelEnv):
         return {agent: obs[i] for i, agent in enumerate(self.possible_agents)}
 
     def state(self) -> np.ndarray:
-        poses = self.core.sim.poses[0]
-        theta = poses[:, 2]
-        columns = (poses[:, 0], poses[:, 1], np.cos(theta), np.sin(theta))
-        return np.stack(columns, axis=-1).reshape(-1).astype(np.float32)
+        return global_state(self.core.sim.poses[0])
 
     def render(self) -> None:
         return None

@@ -37,6 +37,7 @@ from swarm.core import tasks, topologies
 from swarm.core.initial_poses import random_poses
 from swarm.core.robot import RobotParams
 from swarm.core.tasks import coverage
+from swarm.rl.consensus_v0 import global_state
 from swarm.sim.controller_kinds import ControllerArgs, batched_controller
 from swarm.sim.kinematic import KinematicSim
 from swarm.sim.links import Links
@@ -211,10 +212,7 @@ class CoverageParallelEnv(ParallelEnv):
 
     def state(self) -> np.ndarray:
         assert self.sim is not None
-        poses = self.sim.poses[0]
-        theta = poses[:, 2]
-        columns = (poses[:, 0], poses[:, 1], np.cos(theta), np.sin(theta))
-        return np.stack(columns, axis=-1).reshape(-1).astype(np.float32)
+        return global_state(self.sim.poses[0])
 
     def render(self) -> None:
         return None
