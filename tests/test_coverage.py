@@ -261,3 +261,37 @@ def test_the_coverage_env_rewards_the_cost_decrease_and_hears_only_neighbours():
         previous = now
     assert terminations["robot_0"] and infos["robot_0"]["ratio"] <= 1.05
     assert total == pytest.approx((first - cost()) / env.h_ref + 1.0, rel=1e-5)
+
+
+@pytest.mark.runtime
+def test_the_pybullet_runtime_covers_with_one_agent_per_robot_and_is_judged_by_the_cost(tmp_path):
+    """``scenarios/tasks/coverage-cycle-lossy.yaml`` (12 agent processes, 20% loss, a dropped link) and
+    ``coverage-line-lossy.yaml`` (the dropped link cuts robot 0 off the line): the exit status is 0 exactly
+    when H / H_ref, computed here from the sim server's last poses, is within 1.05; each agent heard
+    only its graph neighbours."""
+    from swarm.cli import main
+
+    for name, neighbours in (
+        ("coverage-cycle-lossy", lambda i: sorted({(i - 1) % 12, (i + 1) % 12})),
+        ("coverage-line-lossy", lambda i: [j for j in (i - 1, i + 1) if 0 <= j < 12]),
+    ):
+        path = ROOT / "scenarios" / "tasks" / f"{name}.yaml"
+        out = tmp_path / name
+        code = main(["run", str(path), "--out", str(out), "--quiet"])
+        metrics = json.loads((out / "metrics.json").read_text())
+        final = np.array(
+            [
+                pose[:2]
+                for pose in json.loads((out / "trajectory.jsonl").read_text().splitlines()[-1])["poses"]
+            ]
+        )
+        points, weights = tasks.parse_section(
+            __import__("yaml").safe_load(path.read_text())["task"]
+        ).quadrature()
+        nearest = ((points[:, None, :] - final[None]) ** 2).sum(-1).min(axis=1)
+        ratio = float(nearest @ weights) / metrics["reference_cost_m2"]
+        assert code == (0 if ratio <= 1.05 else 1), (name, ratio, metrics.get("health"))
+        assert metrics["faults"]["messages"]["lost_by_fault"] > 0
+        for i in range(12):
+            record = json.loads((out / "logs" / f"agent_{i}.json").read_text())
+            assert record["controller"] == "lloyd_flood" and record["neighbours"] == neighbours(i), (name, i)
