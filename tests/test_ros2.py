@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 import socket
 import struct
 import subprocess
@@ -556,17 +557,26 @@ def test_swarm_run_of_a_ros2_scenario_goes_through_odom_and_cmd_vel(tmp_path):
     del plain["ros2"]
     plain_file = tmp_path / "plain.yaml"
     plain_file.write_text(yaml.safe_dump(plain))
-    results = {}
-    for name, scenario in (("ros2", shipped), ("plain", plain_file)):
-        done = subprocess.run(
-            [str(BIN / "swarm"), "run", str(scenario), "--out", str(tmp_path / name), "--quiet"],
-            env=_env(),
-            timeout=300,
-            capture_output=True,
-            text=True,
-        )
-        assert done.returncode == 0, done.stdout + done.stderr
-        results[name] = json.loads((tmp_path / name / "metrics.json").read_text())
+    # Lockstep runs are the same run only when every tick was served: a command that missed its deadline
+    # on a loaded machine (the server reports it, ticks_missed) changes the run. Such a pair is run again.
+    for _attempt in range(3):
+        results, served = {}, {}
+        for name, scenario in (("ros2", shipped), ("plain", plain_file)):
+            out = tmp_path / name
+            shutil.rmtree(out, ignore_errors=True)
+            done = subprocess.run(
+                [str(BIN / "swarm"), "run", str(scenario), "--out", str(out), "--quiet"],
+                env=_env(),
+                timeout=300,
+                capture_output=True,
+                text=True,
+            )
+            assert done.returncode == 0, done.stdout + done.stderr
+            results[name] = json.loads((out / "metrics.json").read_text())
+            served[name] = json.loads((out / "server_stats.json").read_text())["ticks_served"]
+        if served == {"ros2": 200, "plain": 200}:
+            break
+    assert served == {"ros2": 200, "plain": 200}, served
     stats = json.loads((tmp_path / "ros2" / "server_stats.json").read_text())
     assert stats["ros2"]["twists_by_robot"] == [200] * 6 and stats["ticks_served"] == 200
     plain_stats = json.loads((tmp_path / "plain" / "server_stats.json").read_text())
