@@ -34,6 +34,24 @@ def task_pictures(
         )
 
 
+def _save_convergence(fig, ax, out_dir: Path, title: str, ylabel: str) -> None:
+    """A task's ``convergence.png`` (its metric over time, log scale) and its data ``<png>.json``."""
+    import matplotlib.pyplot as plt
+
+    from swarm.scenarios.report import plot_data
+
+    ax.set_xlabel("simulated time (s)")
+    ax.set_ylabel(ylabel)
+    ax.set_yscale("log")
+    ax.set_title(title, fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7, loc="upper right")
+    fig.tight_layout()
+    fig.savefig(out_dir / "convergence.png")
+    (out_dir / "convergence.png.json").write_text(json.dumps(plot_data(ax), separators=(",", ":")) + "\n")
+    plt.close(fig)
+
+
 def formation_pictures(
     out_dir: Path, scenario: Scenario, times_s: np.ndarray, poses: np.ndarray, outcome: dict
 ) -> None:
@@ -70,16 +88,7 @@ def formation_pictures(
             ls="-.",
             label=f"lower bound {outcome['lower_bound_s']:.2f} s",
         ).set_gid("lower_bound")
-    ax.set_xlabel("simulated time (s)")
-    ax.set_ylabel("bottleneck distance (m)")
-    ax.set_yscale("log")
-    ax.set_title(title, fontsize=10)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7, loc="upper right")
-    fig.tight_layout()
-    fig.savefig(out_dir / "convergence.png")
-    (out_dir / "convergence.png.json").write_text(json.dumps(plot_data(ax), separators=(",", ":")) + "\n")
-    plt.close(fig)
+    _save_convergence(fig, ax, out_dir, title, "bottleneck distance (m)")
 
     fig, ax = plt.subplots(figsize=(6, 6), dpi=110)
     for robot in range(positions.shape[1]):
@@ -128,16 +137,7 @@ def coverage_pictures(
     )
     if (held_s := outcome["convergence_time_s"]) is not None:
         ax.axvline(held_s, color="tab:green", label=f"held from {held_s:.2f} s").set_gid("converged")
-    ax.set_xlabel("simulated time (s)")
-    ax.set_ylabel("locational cost / reference")
-    ax.set_yscale("log")
-    ax.set_title(title, fontsize=10)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=7, loc="upper right")
-    fig.tight_layout()
-    fig.savefig(out_dir / "convergence.png")
-    (out_dir / "convergence.png.json").write_text(json.dumps(plot_data(ax), separators=(",", ":")) + "\n")
-    plt.close(fig)
+    _save_convergence(fig, ax, out_dir, title, "locational cost / reference")
 
     final = positions[-1]
     fig, ax = plt.subplots(figsize=(6, 6), dpi=110)
