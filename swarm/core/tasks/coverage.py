@@ -28,19 +28,15 @@ import math
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import Field, field_validator, model_validator
 
-from swarm.core.tasks.registry import Task, register, settle_time
+from swarm.core.tasks.registry import StrictSection, Task, register, settle_time
 
 FRAMES_PER_CHUNK = 32
 """Frames of a trajectory whose cost is computed at once (bounds the ``(frames, G, N)`` array)."""
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", populate_by_name=True)
-
-
-class Gaussian(_Strict):
+class Gaussian(StrictSection):
     """One component of the density: weight times the normal density of ``mean``, ``sigma_m``."""
 
     mean: tuple[float, float]
@@ -52,7 +48,7 @@ def _default_region() -> list[tuple[float, float]]:
     return [(-2.0, -2.0), (2.0, -2.0), (2.0, 2.0), (-2.0, 2.0)]
 
 
-class CoverageSection(_Strict):
+class CoverageSection(StrictSection):
     """``task: {kind: coverage, region: [[x, y], ...], gaussians: [...], tolerance: 0.05}``."""
 
     kind: Literal["coverage"] = "coverage"

@@ -41,16 +41,12 @@ import math
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
 
-from swarm.core.tasks.registry import Task, register, settle_time
-
-
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+from swarm.core.tasks.registry import StrictSection, Task, register, settle_time
 
 
-class CircleSlots(_Strict):
+class CircleSlots(StrictSection):
     """N slots evenly on a circle: slot k at ``centre + r (cos(phase + 2 pi k / N), sin(...))``."""
 
     radius_m: float = Field(gt=0)
@@ -58,7 +54,7 @@ class CircleSlots(_Strict):
     phase_rad: float = 0.0
 
 
-class GridSlots(_Strict):
+class GridSlots(StrictSection):
     """Row-major grid of ``columns`` per row (the last row may be short), centred on ``centre``."""
 
     spacing_m: float = Field(gt=0)
@@ -66,7 +62,7 @@ class GridSlots(_Strict):
     centre: tuple[float, float] = (0.0, 0.0)
 
 
-class LineSlots(_Strict):
+class LineSlots(StrictSection):
     """N slots on a segment, ``spacing_m`` apart, centred on ``centre``, at ``angle_rad`` to the x axis."""
 
     spacing_m: float = Field(gt=0)
@@ -74,7 +70,7 @@ class LineSlots(_Strict):
     angle_rad: float = 0.0
 
 
-class SlotsSpec(_Strict):
+class SlotsSpec(StrictSection):
     """Exactly one of ``circle``, ``grid``, ``line`` and ``points`` (an explicit list of N [x, y])."""
 
     circle: CircleSlots | None = None
@@ -127,7 +123,7 @@ class SlotsSpec(_Strict):
         )
 
 
-class FormationSection(_Strict):
+class FormationSection(StrictSection):
     """``task: {kind: formation, slots: {...}, tolerance_m: 0.1, hold_s: 2.0}``."""
 
     kind: Literal["formation"] = "formation"

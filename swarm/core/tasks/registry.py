@@ -17,9 +17,15 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel
+from pydantic import BaseModel, ConfigDict
 
 Outcome = Callable[..., dict]
+
+
+class StrictSection(BaseModel):
+    """The base of a task's scenario section and its parts: unknown keys are errors."""
+
+    model_config = ConfigDict(extra="forbid", populate_by_name=True)
 
 
 @dataclass(frozen=True)
