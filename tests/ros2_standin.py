@@ -207,8 +207,11 @@ def robots(args) -> dict:
         wanted = [f"/MP/%/%{args.namespace.format(i=i)}/" for i in range(n)]
 
         def ready():
+            # every robot's node (NN) and its cmd_vel publisher (MP): the two tokens come on the same
+            # session but not always in that order (a CI run once started between them)
             return all(
                 any(w in t and t.split("/")[9] == f"%{args.namespace.format(i=i)}%cmd_vel" for t in tokens)
+                and any(f"/NN/%/%{args.namespace.format(i=i)}/" in t for t in tokens)
                 for i, w in enumerate(wanted)
             )
 
