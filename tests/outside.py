@@ -210,8 +210,10 @@ def attack(args: argparse.Namespace) -> dict:
     * ``future2``: two poses dated 10^6 and 10^6 + 1 ticks ahead, put on the wildcard pose key;
     * ``walk``: 40 poses of robot ``--robot`` dated k+1 ... k+40, in one burst;
     * ``near``: poses dated k+1 and k+2 on the wildcard pose key;
-    * ``replay``: agent ``--robot``'s messages, each put again unchanged and again with other values the
-      moment it is seen (before the next genuine one), ``--ticks`` of them;
+    * ``replay``: agent ``--robot``'s messages of ticks ``--at-tick`` ... ``--at-tick`` + ``--ticks`` - 1,
+      each put again unchanged and again with other values the moment it is seen (before the next
+      genuine one); a starved attacker skips the ones it saw too late (``copied_ticks`` names those
+      it put);
 
     Every forged sample carries the attachment of the genuine sample it was made from (copying what
     a subscriber sees is all an outsider can do to look genuine).
@@ -299,14 +301,17 @@ def attack(args: argparse.Namespace) -> dict:
             report["at_tick"], done = now_tick, True
         elif kind == "replay" and newest_msg is not None:
             msg_tick = tick_of(newest_msg)
-            if msg_tick is not None and msg_tick > replayed_tick:  # each one as soon as it is seen,
+            last_tick = args.at_tick + args.ticks - 1  # only messages of ticks at_tick ... last_tick:
+            # a starved attacker must not replay what its ring still holds once the run is over
+            if msg_tick is not None and replayed_tick < msg_tick <= last_tick:  # as soon as it is seen,
                 put(msg_key(run, robot), newest_msg, tag_of[newest_msg])  # before the next genuine one
                 put(msg_key(run, robot), with_values(newest_msg, 1000.0), tag_of[newest_msg])
                 replayed_tick = msg_tick
                 report["copies"] = report.get("copies", 0) + 1
+                report.setdefault("copied_ticks", []).append(msg_tick)
                 report["sent"] += 2
                 report.setdefault("at_tick", msg_tick)
-                done = report["copies"] >= args.ticks
+            done = msg_tick is not None and (msg_tick >= last_tick or report.get("copies", 0) >= args.ticks)
         elif kind in ("flood-pose", "flood-msg"):
             source = newest_pose if kind == "flood-pose" else newest_msg
             key = pose_key(run, robot) if kind == "flood-pose" else msg_key(run, robot)

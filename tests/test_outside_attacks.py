@@ -131,20 +131,26 @@ def test_a_burst_of_forty_poses_does_not_walk_the_clock(clean, tmp_path):
 
 
 def test_a_same_tick_message_replay_does_not_overwrite_the_genuine_one(clean, tmp_path):
-    out = tmp_path / "replay"
-    """Every message of agent 2 for 20 ticks is put again the moment the attacker sees it (so most
+    """Every message of agent 2 of ticks 20 ... 39 is put again the moment the attacker sees it (so most
     copies come before the sender's next message, whatever the load), unchanged and with other values
-    under the genuine tag: each copy is counted old, each altered one unauthenticated."""
+    under the genuine tag: each copy is counted old, each altered one unauthenticated, and every
+    genuine message is still taken. The attacker copies no message of a later tick: a starved one
+    once replayed what its ring still held after the run had ended, which no agent was there to count."""
+    out = tmp_path / "replay"
     attack = _attacker(out, "replay", "--robot", "2", "--at-tick", str(AT_TICK), "--ticks", "20")
     report, lines = _run(_scenario(tmp_path), out, attack)
     assert report is not None and report["copies"] >= 1 and report["sent"] == 2 * report["copies"]
+    assert all(AT_TICK <= tick < AT_TICK + 20 for tick in report["copied_ticks"]), report
     _same_trajectory(clean, lines)
     records = _records(out)
     for i in (1, 3):  # agent 2's neighbours on the cycle: the copy is old, the altered one forged
         messages = records[i]["messages"]
         copies = report["copies"]
-        assert messages["old"] == copies and messages["unauthenticated"] == copies, (i, messages)
+        assert messages["old"] == copies and messages["unauthenticated"] == copies, (i, messages, report)
         assert _accounted(messages) == messages["taken"], (i, messages)
+        # what i's two neighbours sent, counted by the senders: all of it taken (or come after the end)
+        genuine = sum(records[j]["commands_sent"] for j in ((i - 1) % COUNT, (i + 1) % COUNT))
+        assert messages["received"] + messages["unread"] == genuine, (i, messages, genuine)
 
 
 FLOOD = 6000
