@@ -212,7 +212,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
     from swarm.scenarios.sweep import SweepConfig, run_sweep
 
-    config = SweepConfig()
+    data: dict = {}
     if args.config:
         try:
             data = yaml.safe_load(Path(args.config).read_text()) or {}
@@ -220,6 +220,13 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             raise UsageError(f"{args.config}: no such sweep config file") from None
         except yaml.YAMLError as error:
             raise UsageError(f"{args.config}: invalid YAML: {str(error).splitlines()[0]}") from None
+        if not isinstance(data, dict):
+            raise UsageError(f"{args.config}: a sweep config is a mapping of settings")
+    if args.task not in (None, "rendezvous") or data.get("task") not in (None, "rendezvous"):
+        return _task_sweep(args, data)
+    data.pop("task", None)
+    config = SweepConfig()
+    if args.config:
         config = SweepConfig.from_mapping(data, source=args.config)
     overrides = {
         "topologies": args.topologies,
@@ -242,6 +249,45 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     for row in failed:
         print(
             f"  not always converged: {row['topology']} N={row['robots']} {row['controller']}: "
+            f"{row['success_rate']:.1%}"
+        )
+    return EXIT_SUCCESS if not failed else EXIT_NOT_MET
+
+
+def _task_sweep(args: argparse.Namespace, data: dict) -> int:
+    """``swarm sweep --task formation`` (or a config with ``task:``): swarm.scenarios.task_sweep."""
+    from swarm.scenarios.task_sweep import TaskSweepConfig, run_task_sweep
+
+    rendezvous_only = {"--model": args.model, "--gain": args.gain, "--workers": args.workers}
+    for option, value in rendezvous_only.items():
+        if value is not None:
+            raise UsageError(f"{option}: a rendezvous sweep setting; a task sweep has none")
+    if args.task is not None:
+        data = {**data, "task": args.task}
+    source = args.config or "command line"
+    config = TaskSweepConfig.from_mapping(data, source=source)
+    overrides = {
+        "topologies": args.topologies,
+        "sizes": args.sizes,
+        "seeds": args.seeds,
+        "controllers": args.controllers,
+        "duration_s": args.max_duration,
+        "v_max_mps": args.v_max,
+        "packet_losses": None if args.packet_loss is None else [args.packet_loss],
+    }
+    config = config.with_overrides({key: value for key, value in overrides.items() if value is not None})
+    _check_out_dir("--out", args.out)
+    out_dir = Path(args.out)
+    rows = run_task_sweep(config, out_dir, progress=not args.quiet)
+    failed = [row for row in rows if row["success_rate"] < 1.0]
+    print(
+        f"sweep {config.task}: {len(rows)} cells, table in {out_dir / 'sweep.md'},"
+        f" plot {out_dir / 'sweep.png'}"
+    )
+    for row in failed:
+        loss = f" loss {row['packet_loss']:g}" if row["packet_loss"] else ""
+        print(
+            f"  not always met: {row['topology']} N={row['robots']}{loss} {row['controller']}: "
             f"{row['success_rate']:.1%}"
         )
     return EXIT_SUCCESS if not failed else EXIT_NOT_MET
@@ -429,7 +475,14 @@ def build_parser() -> argparse.ArgumentParser:
         "kinematic simulator; write sweep.csv, sweep.md and plots of the convergence-time "
         "distributions (absolute and as a ratio to the lower bound of docs/design.md).",
     )
-    sweep.add_argument("--config", help="YAML file with any SweepConfig fields")
+    sweep.add_argument(
+        "--config", help="YAML file with any SweepConfig (or, with task:, TaskSweepConfig) fields"
+    )
+    sweep.add_argument(
+        "--task",
+        help="formation or coverage: that task's experts and baselines on complete, cycle, line, random "
+        "and disk graphs, judged by the task's own rule (swarm.scenarios.task_sweep); default rendezvous",
+    )
     sweep.add_argument("--topologies", nargs="+", help=" ".join([*grid_kinds, "line_sorted"]))
     sweep.add_argument("--sizes", nargs="+", type=robot_count, help="robot counts N")
     sweep.add_argument("--seeds", type=positive_int, help="random starts per cell")

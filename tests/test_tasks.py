@@ -136,15 +136,11 @@ def test_the_bound_is_not_beaten_by_the_expert(name):
         assert outcome["ratio_to_lower_bound"] >= 1.0
 
 
-def test_swarm_sweep_names_the_bench_of_another_tasks_controller(capsys):
-    """``swarm sweep`` is rendezvous's: a formation or coverage kind gets exit 2 and where to measure it."""
+def test_swarm_sweep_sends_another_tasks_controller_to_its_task_sweep(capsys):
+    """A rendezvous sweep of a formation or coverage kind: exit 2, naming ``swarm sweep --task``."""
     from swarm.cli import main
 
-    for kind, task, bench in (
-        ("capt_flood", "formation", "formation.py"),
-        ("lloyd_flood", "coverage", "coverage_kinematic.py"),
-    ):
+    for kind, task in (("capt_flood", "formation"), ("lloyd_flood", "coverage")):
         assert main(["sweep", "--controllers", kind, "--sizes", "6", "--seeds", "1"]) == 2
         error = capsys.readouterr().err
-        assert f"'{kind}' does task {task}; swarm sweep runs rendezvous only" in error
-        assert f"python bench/{bench}" in error
+        assert f"'{kind}' does task {task}; sweep it with swarm sweep --task {task}" in error

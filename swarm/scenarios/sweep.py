@@ -45,7 +45,6 @@ SWEEP_CONTROLLERS: dict[str, tuple[str, dict]] = {
 """Sweep controller names -> (``swarm.sim.controller_kinds`` kind, options): ``mec_flood_forward`` is
 ``mec_flood`` without reversing."""
 CONTROLLERS = tuple(SWEEP_CONTROLLERS)
-_TASK_BENCH = {"formation": "formation.py", "coverage": "coverage_kinematic.py"}
 LOSS_CHUNK_STARTS = 50
 """Under packet loss, a cell's starts run in chunks of this many, chunk c with loss seed c: the
 loss draws (``swarm.core.faults``) are the same in every environment of one simulator."""
@@ -96,10 +95,10 @@ class SweepConfig:
         for controller in self.controllers:
             if controller not in CONTROLLERS:
                 kind = CONTROLLER_KINDS.get(controller)
-                if kind is not None and kind.task != "rendezvous":  # another task's: its bench measures it
+                if kind is not None and kind.task != "rendezvous":  # another task's: its own sweep
                     raise ScenarioError(
-                        f"{source}: controllers: '{controller}' does task {kind.task}; swarm sweep runs"
-                        f" rendezvous only (measure {kind.task} with python bench/{_TASK_BENCH[kind.task]})"
+                        f"{source}: controllers: '{controller}' does task {kind.task}; sweep it with"
+                        f" swarm sweep --task {kind.task}"
                     )
                 raise ScenarioError(f"{source}: controllers: unknown controller '{controller}'")
         if "gnn" in self.controllers:

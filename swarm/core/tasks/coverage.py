@@ -30,7 +30,8 @@ from typing import Literal
 import numpy as np
 from pydantic import Field, field_validator, model_validator
 
-from swarm.core.tasks.registry import StrictSection, Task, register, settle_time
+from swarm.core.initial_poses import random_poses
+from swarm.core.tasks.registry import StrictSection, SweepCells, Task, register, settle_time
 
 FRAMES_PER_CHUNK = 32
 """Frames of a trajectory whose cost is computed at once (bounds the ``(frames, G, N)`` array)."""
@@ -268,6 +269,24 @@ def outcome(times_s: np.ndarray, positions: np.ndarray, section: CoverageSection
     }
 
 
+def sweep_side_m(count: int) -> float:
+    """The side of a sweep cell's square: 0.9 sqrt(N) m (about 0.8 m^2 a robot)."""
+    return 0.9 * math.sqrt(count)
+
+
+def sweep_section(count: int) -> CoverageSection:
+    """A sweep cell: the uniform density on a square of side :func:`sweep_side_m` centred at the origin
+    (``bench/coverage_kinematic.py``'s uniform cells)."""
+    half = sweep_side_m(count) / 2
+    return CoverageSection(region=[(-half, -half), (half, -half), (half, half), (-half, half)])
+
+
+def sweep_starts(rng: np.random.Generator, number: int, count: int) -> np.ndarray:
+    """Every robot in the square's lower-left quadrant, 0.3 m apart: a deployment from one corner."""
+    half = sweep_side_m(count) / 2
+    return random_poses(rng, number, count, (-half, 0.0), (-half, 0.0), 0.3)
+
+
 COVERAGE = register(
     Task(
         name="coverage",
@@ -285,5 +304,16 @@ COVERAGE = register(
         reward="swarm.rl.coverage_v0:CoverageParallelEnv.step",
         plot="swarm.scenarios.task_report:coverage_pictures",
         outcome=outcome,
+        sweep=SweepCells(
+            section=sweep_section,
+            starts=sweep_starts,
+            duration_s=60.0,
+            columns=(
+                *(f"ratio_at_s.{t:g}" for t in REPORT_TIMES_S),
+                "final_metric",
+                "first_within_s",
+            ),
+            sample_every_ticks=5,
+        ),
     )
 )

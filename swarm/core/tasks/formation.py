@@ -43,7 +43,8 @@ from typing import Literal
 import numpy as np
 from pydantic import Field, model_validator
 
-from swarm.core.tasks.registry import StrictSection, Task, register, settle_time
+from swarm.core.initial_poses import box_for, random_poses
+from swarm.core.tasks.registry import StrictSection, SweepCells, Task, register, settle_time
 
 
 class CircleSlots(StrictSection):
@@ -322,6 +323,26 @@ def outcome(times_s: np.ndarray, positions: np.ndarray, section: FormationSectio
     }
 
 
+def sweep_section(count: int) -> FormationSection:
+    """A sweep cell's slots: a circle with neighbours 0.5 m apart (radius at least 1 m), tolerance 0.1 m,
+    held 2 s (``bench/formation.py``'s cells)."""
+    radius_m = max(1.0, count * 0.5 / (2.0 * math.pi))
+    return FormationSection(
+        slots=SlotsSpec(circle=CircleSlots(radius_m=radius_m)), tolerance_m=0.1, hold_s=2.0
+    )
+
+
+def sweep_starts(rng: np.random.Generator, number: int, count: int) -> np.ndarray:
+    """Uniform starts in the rendezvous sweep's box (``box_for``), 0.4 m apart."""
+    box = box_for(count)
+    return random_poses(rng, number, count, box, box)
+
+
+def sweep_held(positions: np.ndarray, section: FormationSection) -> np.ndarray:
+    """``(B,)``: every slot of the section (fixed slots) holds one axle within tolerance now."""
+    return occupied(positions, section.slot_positions(positions.shape[1]), section.tolerance_m)
+
+
 FORMATION = register(
     Task(
         name="formation",
@@ -338,5 +359,12 @@ FORMATION = register(
         plot="swarm.scenarios.task_report:formation_pictures",
         outcome=outcome,
         series=bottleneck_series,
+        sweep=SweepCells(
+            section=sweep_section,
+            starts=sweep_starts,
+            duration_s=120.0,
+            columns=("ratio_to_lower_bound", "convergence_time_s", "final_metric", "conflicts"),
+            held=sweep_held,
+        ),
     )
 )

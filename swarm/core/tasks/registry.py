@@ -29,6 +29,25 @@ class StrictSection(BaseModel):
 
 
 @dataclass(frozen=True)
+class SweepCells:
+    """How ``swarm sweep --task`` (``swarm.scenarios.task_sweep``) draws and judges a cell of a task.
+
+    ``section``: ``N -> section`` of a cell with N robots. ``starts``: ``(rng, number, N) -> (B, N, 3)``
+    poses. ``duration_s``: simulated time of a cell, unless every start holds ``held`` (when given) for
+    the section's ``hold_s`` before it. ``held``: ``(positions (B, N, 2), section) -> (B,)`` the success
+    rule at one instant (None: a cell always runs ``duration_s``). ``sample_every_ticks``: positions kept
+    for the outcome every this many ticks. ``columns``: the ``outcome`` keys tabled as median and p95
+    over the starts (a dotted key reads into a mapping: ``ratio_at_s.5``)."""
+
+    section: Callable[[int], Any]
+    starts: Callable[[np.random.Generator, int, int], np.ndarray]
+    duration_s: float
+    columns: tuple[str, ...]
+    held: Callable[[np.ndarray, Any], np.ndarray] | None = None
+    sample_every_ticks: int = 1
+
+
+@dataclass(frozen=True)
 class Task:
     """One task. ``section``: the pydantic model of the scenario's ``task`` mapping (a ``kind``
     field with this task's name as its only value). ``knows``: what each robot knows, in words.
@@ -61,6 +80,9 @@ class Task:
     reference: Callable[..., float] | None = None
     """``bound == "reference"``: ``(section, robot_count) -> value`` of the metric to compare with (its
     docstring says how it is found and that it is not a bound)."""
+    sweep: SweepCells | None = None
+    """How ``swarm sweep --task`` measures this task (None: not by that command; rendezvous has its own
+    sweep, ``swarm.scenarios.sweep``)."""
 
     @property
     def controllers(self) -> tuple[str, ...]:

@@ -1,0 +1,404 @@
+"""``swarm sweep --task TASK``: a task's controllers over graphs, sizes and seeded starts, batched.
+
+The rendezvous sweep (``swarm.scenarios.sweep``) judges one metric against a threshold; this one asks
+the task registry (``swarm.core.tasks``) for everything it judges, so that a task with a ``sweep``
+entry (:class:`swarm.core.tasks.registry.SweepCells`) is measured by the same command:
+
+1. **Cells.** Every (topology, N, packet loss, controller); controllers default to the task's experts
+   and decentralized baselines. A central controller hears no links, so it has no lossy cells.
+2. **Starts.** ``seeds`` starts per (topology, N), drawn by the task (``SweepCells.starts``) from a
+   generator seeded with ``(seed, topology, N)``: every controller of a cell runs the same starts.
+   A random graph is one connected G(N, p) per start; on a disk graph (radius ``disk_radius_m``) a
+   start whose graph is not connected is drawn again. There a Voronoi cell is cut at half the radius,
+   the distance within which a robot hears every robot that could share its cell (Cortes, Martinez and
+   Bullo 2005; read only by ``lloyd_local``).
+3. **Runs.** Chunks of ``chunk_starts`` starts in the kinematic engine (chunk c draws its packet
+   losses from seed c), for the task's ``duration_s`` or until every start has held the task's
+   success rule for ``hold_s`` (``SweepCells.held``). Positions every ``sample_every_ticks`` ticks.
+4. **Judging.** The task's own ``outcome`` on each start's trajectory (what ``swarm run`` reports for
+   one run): success, its time, the bound or reference, the task's metrics.
+5. **Tables and plot.** ``sweep.csv`` / ``sweep.md``: success and the median and p95 over the starts of
+   each of the task's ``columns``; ``sweep.png``: the first column against N per topology;
+   ``cells/*.json``: every start's outcome.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, fields, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from swarm.core import graphs, topologies
+from swarm.core.faults import LinkFaults
+from swarm.core.robot import RobotParams
+from swarm.core.tasks import registry
+from swarm.scenarios.scenario import ScenarioError
+from swarm.sim.controller_kinds import CONTROLLER_KINDS, ControllerArgs, batched_controller, controller_kind
+from swarm.sim.kinematic import KinematicSim
+
+GRAPHS = ("complete", "cycle", "line", "random", "disk")
+DISK_ATTEMPTS = 200
+"""Draws of ``seeds`` starts after which a disk cell with too few connected starts is refused."""
+
+
+def sweep_tasks() -> tuple[str, ...]:
+    """Tasks that ``swarm sweep --task`` measures (a ``sweep`` entry in the registry)."""
+    return tuple(name for name in registry.names() if registry.get(name).sweep is not None)
+
+
+@dataclass(frozen=True)
+class TaskSweepConfig:
+    """Every setting of a task sweep; a YAML ``--config`` may give any of them."""
+
+    task: str
+    topologies: list[str] = field(default_factory=lambda: list(GRAPHS))
+    sizes: list[int] = field(default_factory=lambda: [6, 12, 24])
+    seeds: int = 20  # starts per (topology, N)
+    controllers: list[str] | None = None  # None: the task's experts and baselines
+    packet_losses: list[float] = field(default_factory=lambda: [0.0])
+    v_max_mps: float = 0.5
+    control_period_s: float = 0.05
+    duration_s: float | None = None  # None: the task's (SweepCells.duration_s)
+    disk_radius_m: float = 2.0
+    seed: int = 0
+    chunk_starts: int = 50
+
+    @classmethod
+    def from_mapping(cls, data: dict, source: str = "<config>") -> TaskSweepConfig:
+        known = {item.name for item in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ScenarioError(f"{source}: {unknown[0]}: unknown key of a task sweep")
+        if "task" not in data:
+            raise ScenarioError(f"{source}: task: missing (one of {', '.join(sweep_tasks())})")
+        config = cls(task=str(data["task"]))
+        return config.with_overrides({k: v for k, v in data.items() if k != "task"}, source)
+
+    def with_overrides(self, overrides: dict, source: str = "command line") -> TaskSweepConfig:
+        config = replace(self, **overrides)
+        config.check(source)
+        return config
+
+    @property
+    def cells(self) -> registry.SweepCells:
+        sweep = registry.get(self.task).sweep
+        assert sweep is not None  # check() refused such a task
+        return sweep
+
+    @property
+    def chosen_controllers(self) -> list[str]:
+        task = registry.get(self.task)
+        return list(self.controllers) if self.controllers is not None else [*task.experts, *task.baselines]
+
+    @property
+    def run_duration_s(self) -> float:
+        return self.duration_s if self.duration_s is not None else self.cells.duration_s
+
+    def check(self, source: str) -> None:
+        if self.task not in sweep_tasks():
+            raise ScenarioError(
+                f"{source}: task: '{self.task}' is not swept; choose from {', '.join(sweep_tasks())}"
+            )
+        task = registry.get(self.task)
+        for controller in self.chosen_controllers:
+            kind = CONTROLLER_KINDS.get(controller)
+            if kind is None or kind.task != self.task:
+                raise ScenarioError(
+                    f"{source}: controllers: '{controller}' does not do task {self.task}"
+                    f" (choose from {', '.join(task.controllers)})"
+                )
+        for topology in self.topologies:
+            if topology not in topologies.kinds(grid=True):
+                raise ScenarioError(f"{source}: topologies: unknown topology '{topology}'")
+        if any(size < 2 for size in self.sizes):
+            raise ScenarioError(f"{source}: sizes: every N must be at least 2")
+        if any(not 0.0 <= p < 1.0 for p in self.packet_losses):
+            raise ScenarioError(f"{source}: packet_losses: each must be in [0, 1)")
+        for name in ("seeds", "v_max_mps", "control_period_s", "disk_radius_m", "chunk_starts"):
+            if not getattr(self, name) > 0:
+                raise ScenarioError(f"{source}: {name}: must be positive")
+        if self.duration_s is not None and not self.duration_s > 0:
+            raise ScenarioError(f"{source}: duration_s: must be positive")
+
+
+# ---------------------------------------------------------------------------------------------- starts
+def cell_starts(config: TaskSweepConfig, topology: str, count: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """``(B, N, 3)`` starts and ``(B, N, N)`` graphs (None on a proximity graph) of a (topology, N)."""
+    index = topologies.grid_index(topology)
+    rng = np.random.default_rng(np.random.SeedSequence([config.seed, index, count]))
+    kind = topologies.get(topology)
+    if not kind.proximity:
+        poses = config.cells.starts(rng, config.seeds, count)
+        drawn = [topologies.draw(topology, count, rng) for _ in range(config.seeds)]
+        return poses, np.stack([graph for graph in drawn if graph is not None])  # a fixed kind: never None
+    chosen: list[np.ndarray] = []
+    for _ in range(DISK_ATTEMPTS):
+        for pose in config.cells.starts(rng, config.seeds, count):
+            if graphs.is_connected(graphs.disk(pose[:, :2], config.disk_radius_m)):
+                chosen.append(pose)
+        if len(chosen) >= config.seeds:
+            return np.stack(chosen[: config.seeds]), None
+    raise ScenarioError(
+        f"disk_radius_m: {config.disk_radius_m:g} m connects too few starts of {count} robots"
+        f" ({len(chosen)} in {DISK_ATTEMPTS * config.seeds} draws); give a larger radius"
+    )
+
+
+# ---------------------------------------------------------------------------------------------- runs
+def run_chunk(
+    config: TaskSweepConfig,
+    section: Any,
+    controller: str,
+    poses: np.ndarray,
+    adjacency: np.ndarray | None,
+    loss: float,
+    loss_seed: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Times ``(T,)`` and axle positions ``(T, B, N, 2)`` of one chunk of starts."""
+    cells, count = config.cells, poses.shape[1]
+    robot = RobotParams(v_max_mps=config.v_max_mps)
+    proximity = adjacency is None
+    args = ControllerArgs(
+        robot=robot,
+        control_period_s=config.control_period_s,
+        robot_count=count,
+        task=section,
+        cell_radius_m=config.disk_radius_m / 2 if proximity else None,
+    )
+    faults = None
+    if loss > 0:
+        faults = LinkFaults([{"kind": "packet_loss", "p": loss}], config.control_period_s, seed=loss_seed)
+    sim = KinematicSim(
+        robot,
+        batched_controller(controller, args),
+        config.control_period_s,
+        poses,
+        adjacency=adjacency,
+        disk_radius_m=config.disk_radius_m if proximity else None,
+        link_faults=faults,
+    )
+    dt, every = config.control_period_s, cells.sample_every_ticks
+    max_ticks = round(config.run_duration_s / dt)
+    hold_ticks = max(1, round(section.hold_s / dt))
+    last_failed = np.full(len(poses), -1)  # the last tick each start's success rule did not hold
+    frames, ticks = [sim.poses[..., :2].copy()], [0]
+    for tick in range(1, max_ticks + 1):
+        sim.step()
+        stop = False
+        if cells.held is not None:
+            last_failed[~cells.held(sim.poses[..., :2], section)] = tick
+            stop = bool(np.all(tick - last_failed > hold_ticks))  # held hold_s past its settle tick
+        if tick % every == 0 or stop or tick == max_ticks:
+            frames.append(sim.poses[..., :2].copy())
+            ticks.append(tick)
+        if stop:
+            break
+    return np.asarray(ticks) * dt, np.stack(frames)
+
+
+def run_cell(
+    config: TaskSweepConfig,
+    topology: str,
+    count: int,
+    controller: str,
+    loss: float,
+    on_progress: Callable[[int], None] | None = None,
+) -> dict:
+    """Every start's ``outcome`` (the task's own) for one cell."""
+    task = registry.get(config.task)
+    assert task.outcome is not None
+    section = config.cells.section(count)
+    poses, adjacency = cell_starts(config, topology, count)
+    outcomes: list[dict] = []
+    chunks = np.array_split(np.arange(len(poses)), math.ceil(len(poses) / config.chunk_starts))
+    for loss_seed, chunk in enumerate(chunks):
+        times, positions = run_chunk(
+            config,
+            section,
+            controller,
+            poses[chunk],
+            None if adjacency is None else adjacency[chunk],
+            loss,
+            loss_seed,
+        )
+        for b in range(len(chunk)):
+            outcome = task.outcome(times, positions[:, b], section, config.v_max_mps)
+            outcomes.append(
+                {key: value for key, value in outcome.items() if key in _KEPT or _is_number(value)}
+            )
+        if on_progress is not None:
+            on_progress(len(outcomes))
+    return {
+        "topology": topology,
+        "robots": count,
+        "controller": controller,
+        "packet_loss": loss,
+        "starts": outcomes,
+    }
+
+
+_KEPT = ("converged", "ratio_at_s")
+
+
+def _is_number(value: object) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def column_values(outcomes: list[dict], column: str) -> np.ndarray:
+    """One column of the starts' outcomes (``a.b``: key b of mapping a); starts without it left out."""
+    values = []
+    for outcome in outcomes:
+        value: Any = outcome
+        for part in column.split("."):
+            value = value.get(part) if isinstance(value, dict) else None
+        if value is not None:
+            values.append(float(value))
+    return np.asarray(values, dtype=np.float64)
+
+
+def summarize_cell(cell: dict, columns: tuple[str, ...]) -> dict:
+    """The cell's row: success rate, then median, p95 and worst of each column over the starts."""
+    outcomes = cell["starts"]
+    row: dict = {key: cell[key] for key in ("topology", "robots", "controller", "packet_loss")}
+    row["starts"] = len(outcomes)
+    row["success_rate"] = float(np.mean([bool(o["converged"]) for o in outcomes]))
+    for column in columns:
+        values = column_values(outcomes, column)
+        row[f"{column}.median"] = float(np.median(values)) if len(values) else None
+        row[f"{column}.p95"] = float(np.percentile(values, 95)) if len(values) else None
+        row[f"{column}.max"] = float(values.max()) if len(values) else None
+        row[f"{column}.of"] = len(values)
+    return row
+
+
+def run_task_sweep(config: TaskSweepConfig, out_dir: Path, progress: bool = True) -> list[dict]:
+    """Run every cell, write ``sweep.csv``, ``sweep.md``, ``sweep.png`` and ``cells/``; the rows."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "cells").mkdir(exist_ok=True)
+    todo = [
+        (topology, count, loss, controller)
+        for loss in config.packet_losses
+        for topology in config.topologies
+        for count in config.sizes
+        for controller in config.chosen_controllers
+        if not (loss > 0 and controller_kind(controller).central)
+    ]
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(todo), unit="cell", desc=f"sweep {config.task}")
+    rows = []
+    for topology, count, loss, controller in todo:
+        on_progress = None
+        if bar is not None:
+            bar.set_description(f"{topology} N={count} {controller}" + (f" loss {loss:g}" if loss else ""))
+
+            def on_progress(done: int, bar=bar) -> None:
+                bar.set_postfix_str(f"{done}/{config.seeds} starts")
+
+        cell = run_cell(config, topology, count, controller, loss, on_progress)
+        name = f"{topology}-N{count}-{controller}-loss{loss:g}.json"
+        (out_dir / "cells" / name).write_text(json.dumps(cell) + "\n")
+        rows.append(summarize_cell(cell, config.cells.columns))
+        if bar is not None:
+            bar.update()
+    if bar is not None:
+        bar.close()
+    write_tables(out_dir, config, rows)
+    plot_task_sweep(out_dir / "sweep.png", config, rows)
+    return rows
+
+
+def write_tables(out_dir: Path, config: TaskSweepConfig, rows: list[dict]) -> None:
+    with open(out_dir / "sweep.csv", "w", newline="") as file:
+        writer = csv.DictWriter(file, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    (out_dir / "sweep_config.json").write_text(json.dumps(asdict(config), indent=2) + "\n")
+    task = registry.get(config.task)
+
+    def pair(row: dict, column: str) -> str:
+        median, p95 = row[f"{column}.median"], row[f"{column}.p95"]
+        if median is None:
+            return "-"
+        shown = f"{median:.3f} / {p95:.3f}"
+        return shown if row[f"{column}.of"] == row["starts"] else f"{shown} ({row[f'{column}.of']})"
+
+    columns = config.cells.columns
+    header = "| topology | N | loss | controller | starts | success | " + " | ".join(columns) + " |"
+    bound = "lower bound" if task.bound == "lower_bound" else "reference (not a bound)"
+    lines = [
+        f"Task {config.task} ({task.summary}): {config.seeds} starts per cell,"
+        f" v_max {config.v_max_mps:g} m/s,"
+        f" control period {config.control_period_s:g} s, at most {config.run_duration_s:g} s simulated,"
+        f" kinematic engine; disk graphs of radius {config.disk_radius_m:g} m.",
+        f"Metric: {task.metric}. Success: {task.success}. Compared with: the {bound}.",
+        "Each column: median / p95 over the starts that have it (how many, where not all).",
+        "",
+        header,
+        "|" + "---|" * (header.count("|") - 1),
+    ]
+    for row in rows:
+        lines.append(
+            f"| {row['topology']} | {row['robots']} | {row['packet_loss']:.0%} | {row['controller']}"
+            f" | {row['starts']} | {row['success_rate']:.0%} | "
+            + " | ".join(pair(row, column) for column in columns)
+            + " |"
+        )
+    (out_dir / "sweep.md").write_text("\n".join(lines) + "\n")
+
+
+def plot_task_sweep(path: Path, config: TaskSweepConfig, rows: list[dict]) -> None:
+    """The first column's median (marker) and p95 (bar top) against N, one panel per topology and
+    packet loss, one line per controller."""
+    from swarm.scenarios import plots
+
+    column = config.cells.columns[0]
+    panels = [(t, loss) for loss in config.packet_losses for t in config.topologies]
+    panels = [
+        (t, loss) for t, loss in panels if any(r["topology"] == t and r["packet_loss"] == loss for r in rows)
+    ]
+    fig, axes = plots.panel_grid(len(panels))
+    controllers = config.chosen_controllers
+    for ax, (topology, loss) in zip(axes, panels, strict=True):
+        values = []
+        for controller in controllers:
+            mine = [
+                r
+                for r in rows
+                if (r["topology"], r["packet_loss"], r["controller"]) == (topology, loss, controller)
+                and r[f"{column}.median"] is not None
+            ]
+            if not mine:
+                continue
+            sizes = [r["robots"] for r in mine]
+            median = np.array([r[f"{column}.median"] for r in mine])
+            p95 = np.array([r[f"{column}.p95"] for r in mine])
+            colour, marker, style = plots.controller_style(controller, controllers)
+            ax.errorbar(
+                sizes,
+                median,
+                yerr=[np.zeros_like(median), p95 - median],
+                color=colour,
+                marker=marker,
+                linestyle=style,
+                capsize=3,
+                label=plots.controller_label(controller),
+            )
+            values += [*median, *p95]
+        plots.ticks_at_sizes(ax, config.sizes)
+        plots.fit_axis(ax, values, floor=1.0 if column.startswith("ratio") else None)
+        ax.set_title(f"{topology}" + (f", {loss:.0%} loss" if loss else ""))
+        ax.set_xlabel("robots N")
+        ax.set_ylabel(f"{column} (median, p95)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize="small")
+    fig.suptitle(f"swarm sweep --task {config.task}: {config.seeds} starts per cell")
+    plots.save(fig, path)
