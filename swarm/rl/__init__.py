@@ -5,6 +5,8 @@
 - ``swarm.rl.consensus_v0``: the multi-agent PettingZoo env (every robot an agent, local observations).
 - ``swarm.rl.coverage_v0``: the coverage task as a multi-agent PettingZoo env (reward: the decrease of
   the locational cost over the reference; ``expert_actions()``: centralized Lloyd's).
+- ``swarm.rl.formation_v0``: the formation task as a multi-agent PettingZoo env (reward: the decrease of
+  the bottleneck distance in steps at ``v_max``; ``expert_actions()``: the CAPT expert's).
 - ``swarm.rl.dqn``: DQN on ``swarm/Consensus-v0`` with Stable-Baselines3 (``swarm train --algo dqn``).
 - ``swarm.rl.torchrl_env``: the batched torch swarm of ``swarm train --algo ppo`` as a TorchRL
   multi-agent ``EnvBase`` (extra ``torchrl``; ``bench/ppo_torchrl.py`` trains TorchRL's MAPPO on it).
