@@ -160,3 +160,38 @@ def test_a_task_sweep_config_names_its_file_and_key(tmp_path, capsys):
     config.write_text("task: formation\nsizes: [4]\nthreshold_m: 0.2\n")
     assert main(["sweep", "--config", str(config), "--out", str(tmp_path / "out")]) == 2
     assert f"{config}: threshold_m: unknown key of a task sweep" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_ctrl_c_keeps_the_finished_cells_and_exits_130(tmp_path):
+    """Interrupted after its first cell, a task sweep writes the tables of the cells it finished."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "sweep"
+    command = [sys.executable, "-m", "swarm.cli", "sweep", "--task", "formation", "--topologies", "cycle"]
+    command += ["--sizes", "4", "50", "100", "--seeds", "50", "--out", str(out), "--quiet"]
+    run = subprocess.Popen(  # SIGINT as from a terminal, even when the suite runs in the background
+        command,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        give_up = time.monotonic() + 300
+        while not list((out / "cells").glob("*.json")) and time.monotonic() < give_up and run.poll() is None:
+            time.sleep(0.05)
+        finished = len(list((out / "cells").glob("*.json")))
+        assert finished >= 1 and run.poll() is None
+        run.send_signal(signal.SIGINT)
+        _, stderr = run.communicate(timeout=120)
+    finally:
+        if run.poll() is None:
+            run.kill()
+    assert run.returncode == 130, stderr
+    table = (out / "sweep.md").read_text()
+    done = len(list((out / "cells").glob("*.json")))
+    assert f"Interrupted after {done} of 6 cells." in table
+    assert table.count("| cycle |") == done

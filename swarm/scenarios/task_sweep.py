@@ -281,11 +281,11 @@ def run_task_sweep(config: TaskSweepConfig, out_dir: Path, progress: bool = True
     """Run every cell, write ``sweep.csv``, ``sweep.md``, ``sweep.png`` and ``cells/``; the rows."""
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "cells").mkdir(exist_ok=True)
-    todo = [
+    todo = [  # the small swarms of every graph first: an interrupted sweep has whole tables for them
         (topology, count, loss, controller)
         for loss in config.packet_losses
-        for topology in config.topologies
         for count in config.sizes
+        for topology in config.topologies
         for controller in config.chosen_controllers
         if not (loss > 0 and controller_kind(controller).central)
     ]
@@ -294,29 +294,37 @@ def run_task_sweep(config: TaskSweepConfig, out_dir: Path, progress: bool = True
         from tqdm import tqdm
 
         bar = tqdm(total=len(todo), unit="cell", desc=f"sweep {config.task}")
-    rows = []
-    for topology, count, loss, controller in todo:
-        on_progress = None
-        if bar is not None:
-            bar.set_description(f"{topology} N={count} {controller}" + (f" loss {loss:g}" if loss else ""))
+    rows: list[dict] = []
+    try:
+        for topology, count, loss, controller in todo:
+            on_progress = None
+            if bar is not None:
+                bar.set_description(
+                    f"{topology} N={count} {controller}" + (f" loss {loss:g}" if loss else "")
+                )
 
-            def on_progress(done: int, bar=bar) -> None:
-                bar.set_postfix_str(f"{done}/{config.seeds} starts")
+                def on_progress(done: int, bar=bar) -> None:
+                    bar.set_postfix_str(f"{done}/{config.seeds} starts")
 
-        cell = run_cell(config, topology, count, controller, loss, on_progress)
-        name = f"{topology}-N{count}-{controller}-loss{loss:g}.json"
-        (out_dir / "cells" / name).write_text(json.dumps(cell) + "\n")
-        rows.append(summarize_cell(cell, config.cells.columns))
+            cell = run_cell(config, topology, count, controller, loss, on_progress)
+            name = f"{topology}-N{count}-{controller}-loss{loss:g}.json"
+            (out_dir / "cells" / name).write_text(json.dumps(cell) + "\n")
+            rows.append(summarize_cell(cell, config.cells.columns))
+            if bar is not None:
+                bar.update()
+    except KeyboardInterrupt:  # keep what is done: the tables of the finished cells, then exit 130
+        if rows:
+            write_tables(out_dir, config, rows, note=f"Interrupted after {len(rows)} of {len(todo)} cells.")
+        raise
+    finally:
         if bar is not None:
-            bar.update()
-    if bar is not None:
-        bar.close()
+            bar.close()
     write_tables(out_dir, config, rows)
     plot_task_sweep(out_dir / "sweep.png", config, rows)
     return rows
 
 
-def write_tables(out_dir: Path, config: TaskSweepConfig, rows: list[dict]) -> None:
+def write_tables(out_dir: Path, config: TaskSweepConfig, rows: list[dict], note: str = "") -> None:
     with open(out_dir / "sweep.csv", "w", newline="") as file:
         writer = csv.DictWriter(file, fieldnames=list(rows[0]))
         writer.writeheader()
@@ -341,6 +349,7 @@ def write_tables(out_dir: Path, config: TaskSweepConfig, rows: list[dict]) -> No
         f" kinematic engine; disk graphs of radius {config.disk_radius_m:g} m.",
         f"Metric: {task.metric}. Success: {task.success}. Compared with: the {bound}.",
         "Each column: median / p95 over the starts that have it (how many, where not all).",
+        *([note] if note else []),
         "",
         header,
         "|" + "---|" * (header.count("|") - 1),
