@@ -204,6 +204,30 @@ def latest_with_attachment(subscriber) -> tuple[bytes, bytes | None] | None:
     return newest
 
 
+def flush(session, run: str, watch, report: dict) -> None:
+    """Wait until the router has taken every put so far, and note then the run's tick.
+
+    A query the sim answers, asked after the last put, is answered once the router has taken every put
+    before it (tests/test_fuzz.py): then the session may close without dropping any. ``flushed_tick``:
+    the first pose of robot ``--watch`` that comes after the answer (None: none came within 3 s, the
+    run was over). A starved attacker whose puts reached the router only after the agents had left
+    cannot expect them counted: the tests judge exact counts only when this tick left the agents time
+    to read them."""
+    flush_until_s, flushed = time.monotonic() + 30, False
+    while not flushed and time.monotonic() < flush_until_s:
+        flushed = any(reply.ok is not None for reply in session.get(config_key(run, 0), timeout=5.0))
+    report["flushed_tick"] = None
+    if flushed:
+        while watch.try_recv() is not None:  # queued before the answer or just after: older
+            pass
+        pose_until_s = time.monotonic() + 3.0
+        while report["flushed_tick"] is None and time.monotonic() < pose_until_s:
+            payload = latest(watch)
+            if payload is not None:
+                report["flushed_tick"] = tick_of(payload)
+            time.sleep(0.005)
+
+
 def attack(args: argparse.Namespace) -> dict:
     """One attack of the issue's list (``--kind``), from tick ``--at-tick`` on robot ``--watch``'s poses:
 
@@ -269,6 +293,8 @@ def attack(args: argparse.Namespace) -> dict:
 
     next_s = time.monotonic()
     while time.monotonic() < give_up_s:
+        if done and report["sent"] and kind != "config" and "flushed_tick" not in report:
+            flush(session, run, watch, report)  # at once: when the router took the puts is the point
         payload = latest(watch)
         tick = tick_of(payload) if payload is not None else None
         for subscriber, kind_of in ((own, "pose"), (msgs, "msg")):
@@ -303,7 +329,9 @@ def attack(args: argparse.Namespace) -> dict:
             msg_tick = tick_of(newest_msg)
             last_tick = args.at_tick + args.ticks - 1  # only messages of ticks at_tick ... last_tick:
             # a starved attacker must not replay what its ring still holds once the run is over
-            if msg_tick is not None and replayed_tick < msg_tick <= last_tick:  # as soon as it is seen,
+            if (
+                msg_tick is not None and max(replayed_tick + 1, args.at_tick) <= msg_tick <= last_tick
+            ):  # seen:
                 put(msg_key(run, robot), newest_msg, tag_of[newest_msg])  # before the next genuine one
                 put(msg_key(run, robot), with_values(newest_msg, 1000.0), tag_of[newest_msg])
                 replayed_tick = msg_tick
@@ -328,12 +356,8 @@ def attack(args: argparse.Namespace) -> dict:
             time.sleep(0.0002)
         else:
             time.sleep(0.001)
-    # A query the sim answers, asked after the last put, is answered once the router has taken every
-    # put before it (tests/test_fuzz.py): then the session may close without dropping any.
-    flush_until_s = time.monotonic() + (30 if report["sent"] and kind != "config" else 0)
-    while time.monotonic() < flush_until_s:
-        if any(reply.ok is not None for reply in session.get(config_key(run, 0), timeout=5.0)):
-            break
+    if report["sent"] and kind != "config" and "flushed_tick" not in report:
+        flush(session, run, watch, report)
     for entity in reversed(entities):
         entity.undeclare()
     session.close()

@@ -61,6 +61,7 @@ BAD_NAMED: dict[tuple[str, str], tuple[list[str], str, str]] = {
     ("sweep", "--topologies"): ([], "bogus", "unknown topology 'bogus'"),
     ("sweep", "--controllers"): ([], "bogus", "unknown controller 'bogus'"),
     ("sweep", "--model"): (["--controllers", "gnn"], MISSING, "no such policy file"),
+    ("sweep", "--task"): ([], "bogus", "task: 'bogus' is not swept; choose from formation, coverage"),
     ("sweep", "--out"): (
         ["--sizes", "6", "--seeds", "1", "--topologies", "cycle"],
         A_FILE,

@@ -85,6 +85,17 @@ def _same_trajectory(a: list, b: list) -> None:
         assert line_a.get("wheels") == line_b.get("wheels"), line_a["tick"]
 
 
+LATE_TICKS = 20
+"""An attacker whose puts the router took (its flush query answered) this near the end or later may have
+sent to agents that had left: its samples are then counted at most, not exactly."""
+
+
+def _delivered(report: dict) -> bool:
+    """Every put was with the router while the agents had ``LATE_TICKS`` ticks left to read it
+    (``flushed_tick`` of tests/outside.py): what the test expects counted must then be counted."""
+    return report["flushed_tick"] is not None and report["flushed_tick"] < STEPS - LATE_TICKS
+
+
 def _accounted(stream: dict) -> int:
     """Every sample an agent read from a receive ring, by what became of it."""
     names = ("received", "unauthenticated", "invalid", "old", "future")
@@ -113,7 +124,11 @@ def test_forged_poses_on_the_wildcard_change_nothing(clean, tmp_path, kind):
     _same_trajectory(clean, lines)
     for i, agent in _records(out).items():
         poses = agent["poses"]
-        assert poses["unauthenticated"] == 2, (i, poses)  # named, not blamed on the genuine ones
+        # named, not blamed on the genuine ones (all of them, unless the attacker was starved to the end)
+        assert poses["unauthenticated"] == 2 if _delivered(report) else poses["unauthenticated"] <= 2, (
+            i,
+            poses,
+        )
         assert poses["old"] == poses["future"] == poses["jumps"] == poses["recovered"] == 0, (i, poses)
         assert agent["ticks"] == STEPS, i  # nobody froze
         assert _accounted(poses) == poses["taken"], (i, poses)
@@ -126,7 +141,9 @@ def test_a_burst_of_forty_poses_does_not_walk_the_clock(clean, tmp_path):
     assert report is not None and report["sent"] == 40
     _same_trajectory(clean, lines)
     poses = _records(out)[5]["poses"]
-    assert poses["unauthenticated"] == 40 and poses["old"] == 0 and poses["jumps"] == 0, poses
+    forged = poses["unauthenticated"]
+    assert forged == 40 if _delivered(report) else forged <= 40, (poses, report)
+    assert poses["old"] == 0 and poses["jumps"] == 0, poses
     assert _accounted(poses) == poses["taken"], poses
 
 
@@ -146,7 +163,10 @@ def test_a_same_tick_message_replay_does_not_overwrite_the_genuine_one(clean, tm
     for i in (1, 3):  # agent 2's neighbours on the cycle: the copy is old, the altered one forged
         messages = records[i]["messages"]
         copies = report["copies"]
-        assert messages["old"] == copies and messages["unauthenticated"] == copies, (i, messages, report)
+        if _delivered(report):
+            assert messages["old"] == copies and messages["unauthenticated"] == copies, (i, messages, report)
+        else:  # a starved attacker's last copies may have come after the agents left
+            assert messages["old"] <= copies and messages["unauthenticated"] <= copies, (i, messages, report)
         assert _accounted(messages) == messages["taken"], (i, messages)
         # what i's two neighbours sent, counted by the senders: all of it taken (or come after the end)
         genuine = sum(records[j]["commands_sent"] for j in ((i - 1) % COUNT, (i + 1) % COUNT))
