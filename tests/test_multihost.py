@@ -184,7 +184,13 @@ def test_a_network_partition_mid_run_is_survived_on_both_sides(two_hosts, tmp_pa
         assert np.all(wheels[gone_tick + 1 : back_tick, far] == 0.0)  # stopped while cut off
         assert np.any(wheels[back_tick + 1 :, far] != 0.0)  # driven again afterwards
     for near in (4, 5):
-        assert per_robot[near]["gone_at_s"] == []  # never cut off
+        # never cut off: no token lost during the cut. When the link comes back the router re-sends the
+        # liveliness tokens, and on a loaded machine (2 busy loops) the server once saw the near tokens
+        # go and come back 7 ms later (tick 123 to 124, the far ones' late expiry at the same moment)
+        entry = per_robot[near]
+        assert len(entry["gone_at_s"]) == len(entry["back_at_s"]) <= 1, entry
+        for gone_s, back_s in zip(entry["gone_at_s"], entry["back_at_s"], strict=True):
+            assert round(gone_s / dt_s) >= restored_tick - 1 and back_s - gone_s <= 2 * dt_s + 1e-9, entry
         # Fewer, not none: measured with plain Zenoh 1.10 (no project code), the router forwards
         # nothing from its healthy clients for ~2.1 s while it closes the links whose lease expired.
         assert per_robot[near]["ticks_without_command"] < min(
