@@ -68,7 +68,11 @@ go before they exit, as ``robot_agent`` does: 100 agents leaving at once would l
 tick."""
 
 _in_loop = False
-"""SIGTERM interrupts only the tick loop's ``recv`` (elsewhere it is remembered: ``_stopping``)."""
+"""The tick loop runs: the sim's token going sends this process SIGTERM."""
+_in_recv = False
+"""SIGTERM interrupts only the tick loop's blocking ``recv`` (elsewhere it is remembered: ``_stopping``,
+and the loop stops once every pose it already got is computed: a bare agent lagging behind the lockstep
+sim had been stopped 4 poses short of the last tick when the sim's token went)."""
 _stopping = False
 _sim_gone = threading.Event()
 
@@ -81,7 +85,7 @@ def _stop(*_: object) -> None:
     global _stopping
     _stopping = True
     _sim_gone.set()  # ends the wait after the last tick
-    if _in_loop:
+    if _in_recv:
         raise _Stop
 
 
@@ -116,7 +120,7 @@ def run_agent(
 ) -> int:
     """One bare agent in ``role`` (``ROLES``); returns its exit status (0: it ran to the end or was
     stopped)."""
-    global _in_loop
+    global _in_loop, _in_recv
     started_s = time.monotonic()
     signal.signal(signal.SIGTERM, _stop)
     ctypes.CDLL(None).prctl(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)  # die with the launcher
@@ -181,7 +185,11 @@ def run_agent(
             if _stopping:
                 raise _Stop
             while state["tick"] < final_tick:
+                _in_recv = True  # before the check: a SIGTERM from here on interrupts the wait
+                if _stopping:  # every pose already got is computed
+                    raise _Stop
                 sample = pose_sub.recv()
+                _in_recv = False
                 while sample is not None:  # every pose queued, in order: the same work per tick as the sim's
                     pose = unpackb(sample.payload.to_bytes())
                     tick = state["tick"] = pose["k"]
@@ -216,7 +224,7 @@ def run_agent(
         except _Stop:
             reason = "stopped"
         finally:
-            _in_loop = False
+            _in_loop = _in_recv = False
         if reason == "done" and role != "floor":
             _sim_gone.wait(SIM_GONE_WAIT_S)  # idle; SIGTERM ends it too
         for entity in reversed(entities):
