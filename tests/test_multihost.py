@@ -206,10 +206,7 @@ def test_a_network_partition_mid_run_is_survived_on_both_sides(two_hosts, tmp_pa
         # the end of the run, and at most the flicker of the sim's token when the link came back (the
         # token re-sent with the server's view of robot 5 going and coming back at the same tick, 6.2 s,
         # in a loaded run); a near agent computed every tick: it was never cut off
-        assert records[near]["sim_lost"] <= 1 + len(per_robot[near]["gone_at_s"]), (
-            records[near],
-            per_robot[near],
-        )
+        assert 1 <= records[near]["sim_lost"] <= 2, (records[near], per_robot[near])
         assert records[near]["ticks"] == steps and records[near]["messages"]["lost"] > 0, records[near]
 
 
