@@ -101,7 +101,16 @@ def main(argv: list[str] | None = None) -> int:
     commit = subprocess.run(
         ["git", "rev-parse", "--short", "HEAD"], cwd=PROJECT_ROOT, capture_output=True, text=True
     ).stdout.strip()
-    status = ["git", "status", "--porcelain", "--untracked-files=no"]
+    # its own result files do not make the tree dirty (a second invocation finds the first one's)
+    status = [
+        "git",
+        "status",
+        "--porcelain",
+        "--untracked-files=no",
+        "--",
+        ".",
+        ":!bench/results/loaded_suite.*",
+    ]
     dirty = subprocess.run(status, cwd=PROJECT_ROOT, capture_output=True, text=True).stdout.strip()
     commit += "+changes" if dirty else ""
     args.out.parent.mkdir(parents=True, exist_ok=True)
