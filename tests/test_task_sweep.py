@@ -195,3 +195,17 @@ def test_ctrl_c_keeps_the_finished_cells_and_exits_130(tmp_path):
     done = len(list((out / "cells").glob("*.json")))
     assert f"Interrupted after {done} of 6 cells." in table
     assert table.count("| cycle |") == done
+
+
+def test_starts_that_cannot_be_drawn_are_refused_before_any_cell_runs(tmp_path, capsys):
+    """A disk radius that connects no start of the last cell: exit 2 naming it, and no cell was run."""
+    from swarm.cli import main
+
+    config = tmp_path / "cells.yaml"
+    config.write_text(
+        "task: formation\ntopologies: [complete, disk]\nsizes: [4, 30]\nseeds: 1\ndisk_radius_m: 0.5\n"
+    )
+    out = tmp_path / "out"
+    assert main(["sweep", "--config", str(config), "--out", str(out), "--quiet"]) == 2
+    assert "disk_radius_m: 0.5 m connects too few starts of" in capsys.readouterr().err
+    assert not list((out / "cells").glob("*.json"))

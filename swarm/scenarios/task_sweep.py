@@ -289,6 +289,9 @@ def run_task_sweep(config: TaskSweepConfig, out_dir: Path, progress: bool = True
         for controller in config.chosen_controllers
         if not (loss > 0 and controller_kind(controller).central)
     ]
+    for topology in config.topologies:  # starts that cannot be drawn are bad input: refused before any run
+        for count in config.sizes:
+            cell_starts(config, topology, count)
     bar = None
     if progress:
         from tqdm import tqdm
