@@ -41,8 +41,8 @@ MAX_DURATION_S = 120.0
 
 
 def section_for(count: int) -> FormationSection:
-    radius_m = max(1.0, count * 0.5 / (2.0 * math.pi))
-    return FormationSection(slots={"circle": {"radius_m": radius_m}}, tolerance_m=0.1, hold_s=2.0)
+    """The cells' slots: ``swarm sweep --task formation``'s (``formation.sweep_section``)."""
+    return formation.sweep_section(count)
 
 
 def starts(graph: str, count: int, number: int, seed: int) -> np.ndarray:

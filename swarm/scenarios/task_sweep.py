@@ -209,12 +209,13 @@ def run_cell(
     controller: str,
     loss: float,
     on_progress: Callable[[int], None] | None = None,
+    starts: tuple[np.ndarray, np.ndarray | None] | None = None,
 ) -> dict:
     """Every start's ``outcome`` (the task's own) for one cell."""
     task = registry.get(config.task)
     assert task.outcome is not None
     section = config.cells.section(count)
-    poses, adjacency = cell_starts(config, topology, count)
+    poses, adjacency = starts if starts is not None else cell_starts(config, topology, count)
     outcomes: list[dict] = []
     chunks = np.array_split(np.arange(len(poses)), math.ceil(len(poses) / config.chunk_starts))
     for loss_seed, chunk in enumerate(chunks):
@@ -289,9 +290,8 @@ def run_task_sweep(config: TaskSweepConfig, out_dir: Path, progress: bool = True
         for controller in config.chosen_controllers
         if not (loss > 0 and controller_kind(controller).central)
     ]
-    for topology in config.topologies:  # starts that cannot be drawn are bad input: refused before any run
-        for count in config.sizes:
-            cell_starts(config, topology, count)
+    # drawn once, before any run: starts that cannot be drawn are bad input, refused before any work
+    starts = {(t, n): cell_starts(config, t, n) for t in config.topologies for n in config.sizes}
     bar = None
     if progress:
         from tqdm import tqdm
@@ -309,7 +309,7 @@ def run_task_sweep(config: TaskSweepConfig, out_dir: Path, progress: bool = True
                 def on_progress(done: int, bar=bar) -> None:
                     bar.set_postfix_str(f"{done}/{config.seeds} starts")
 
-            cell = run_cell(config, topology, count, controller, loss, on_progress)
+            cell = run_cell(config, topology, count, controller, loss, on_progress, starts[topology, count])
             name = f"{topology}-N{count}-{controller}-loss{loss:g}.json"
             (out_dir / "cells" / name).write_text(json.dumps(cell) + "\n")
             rows.append(summarize_cell(cell, config.cells.columns))
