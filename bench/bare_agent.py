@@ -107,7 +107,7 @@ def _config(connect: list[str]) -> zenoh.Config:
 
 
 def _fetch_config(session: zenoh.Session, key: str, deadline_s: float) -> dict | None:
-    while time.monotonic() < deadline_s:
+    while time.monotonic() < deadline_s and not _stopping:
         for reply in session.get(key, timeout=1.0):
             if reply.ok is not None:
                 return msgpack.unpackb(reply.ok.payload.to_bytes(), raw=False)

@@ -33,8 +33,15 @@ def test_bare_agents_shadow_every_tick_with_the_real_payloads(tmp_path: Path) ->
     # every command a bare agent put passes the real decoder: the same payload layout as robot_agent's
     assert measured["bare_commands"] > 0 and measured["bare_commands_invalid"] == 0
     records = [bench_runtime.json.loads(p.read_text()) for p in (tmp_path / "bare").glob("floor_*.json")]
-    assert sorted(r["last_tick"] for r in records) == [steps - 1] * count
-    assert all(r["exit_reason"] == "done" for r in records)
+    # each ran to the run's last tick, unless it lagged so far behind when the lockstep run ended that
+    # the poses the sim's router still held went with it (it is then stopped by Floor.finish: seen once
+    # in 15 runs beside 4 busy loops, one bare agent at tick 872 of 1199)
+    for record in records:
+        if record["exit_reason"] == "done":
+            assert record["last_tick"] == steps - 1, records
+        else:
+            assert record["exit_reason"] == "stopped" and measured["stopped_after_run"], records
+            assert record["first_tick"] <= record["last_tick"] < steps - 1, records
     # each computed poses from its first one on, none twice (its pose ring drops the oldest when it
     # lags far behind on a loaded machine, so fewer is allowed: a CI-like run computed 1105 of 1200)
     assert all(0 < r["ticks"] <= steps - r["first_tick"] for r in records), records
