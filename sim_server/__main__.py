@@ -32,7 +32,7 @@ from swarm.runtime.usage import (
     one_line,
     silenced_stderr,
 )
-from swarm.scenarios.scenario import ScenarioError, load_scenario, resolve_model_path
+from swarm.scenarios.scenario import ScenarioError, load_scenario, parse_scenario, policy_path
 
 ADMIN_SPACE = {"adminspace/enabled": True, "adminspace/permissions": {"read": True, "write": False}}
 
@@ -121,10 +121,12 @@ def main(argv: list[str] | None = None) -> int:
     try:
         scenario = load_scenario(args.scenario)
         wire.check_run_id(args.run)
-        policy = None
-        model = args.model or scenario.controller.model
-        if scenario.controller.kind == "gnn":
-            policy = resolve_model_path(model, Path(args.scenario)).read_bytes()
+        if args.model:
+            data = scenario.model_dump(mode="json")
+            data["controller"]["model"] = args.model
+            scenario = parse_scenario(data)
+        path = policy_path(scenario, Path(args.scenario))
+        policy = path.read_bytes() if path is not None else None
         settings = {}
         if scenario.sim.acl or (scenario.sim.acl is None and args.users):  # unset: on with --users
             settings = acl_settings(scenario, args)

@@ -224,6 +224,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             raise UsageError(f"{args.config}: a sweep config is a mapping of settings")
     if args.task not in (None, "rendezvous") or data.get("task") not in (None, "rendezvous"):
         return _task_sweep(args, data)
+    if args.resume:
+        raise UsageError("--resume: a task sweep setting (--task formation or coverage)")
     data.pop("task", None)
     config = SweepConfig()
     if args.config:
@@ -278,7 +280,7 @@ def _task_sweep(args: argparse.Namespace, data: dict) -> int:
     config = config.with_overrides({key: value for key, value in overrides.items() if value is not None})
     _check_out_dir("--out", args.out)
     out_dir = Path(args.out)
-    rows = run_task_sweep(config, out_dir, progress=not args.quiet)
+    rows = run_task_sweep(config, out_dir, progress=not args.quiet, resume=args.resume)
     failed = [row for row in rows if row["success_rate"] < 1.0]
     print(
         f"sweep {config.task}: {len(rows)} cells, table in {out_dir / 'sweep.md'},"
@@ -499,6 +501,12 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--out", default="runs/sweep", help="output directory (default: runs/sweep)")
     sweep.add_argument(
         "--workers", type=positive_int, help="processes each cell's starts are split over (default 1)"
+    )
+    sweep.add_argument(
+        "--resume",
+        action="store_true",
+        help="task sweeps: read the cells --out already holds from a sweep of the same settings (other"
+        " controllers allowed) instead of running them again",
     )
     sweep.set_defaults(handler=cmd_sweep)
 

@@ -90,7 +90,7 @@ def _variants() -> list[tuple[str, Path | None]]:
     for name, kind in CONTROLLER_KINDS.items():
         if kind.task != "rendezvous" and kind.central:
             continue  # another task's central kinds (capt: tests/test_formation.py), not in the runtime
-        if "model" in kind.options:
+        if "model" in kind.options and kind.task == "rendezvous":
             variants += [(name, path) for path in _model_files().values()]
         else:
             variants.append((name, None))

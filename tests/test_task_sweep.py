@@ -40,7 +40,7 @@ def test_every_swept_task_gives_every_controller_the_same_seeded_starts(task, tm
     config = _small(task, packet_losses=[0.0, 0.5])
     rows = task_sweep.run_task_sweep(config, tmp_path / "a", progress=False)
     task_entry = registry.get(task)
-    controllers = [*task_entry.experts, *task_entry.baselines]
+    controllers = [*task_entry.experts, *task_entry.baselines, *task_entry.learned]
     expected = {(t, c, 0.0) for t in config.topologies for c in controllers}
     expected |= {(t, c, 0.5) for t in config.topologies for c in controllers if not registry_central(c)}
     assert {(r["topology"], r["controller"], r["packet_loss"]) for r in rows} == expected
@@ -125,10 +125,29 @@ def test_the_sweep_command_runs_a_task_and_exits_1_where_a_cell_fails(tmp_path, 
     out = tmp_path / "formation"
     argv = ["sweep", "--task", "formation", "--sizes", "4", "--seeds", "2", "--topologies", "complete"]
     assert main([*argv, "--out", str(out), "--quiet"]) == 0
-    assert "sweep formation: 2 cells" in capsys.readouterr().out
+    assert "sweep formation: 3 cells" in capsys.readouterr().out
     cells = sorted(path.name for path in (out / "cells").iterdir())
-    assert cells == ["complete-N4-capt-loss0.json", "complete-N4-capt_flood-loss0.json"]
+    expected = [
+        "complete-N4-capt-loss0.json",
+        "complete-N4-capt_flood-loss0.json",
+        "complete-N4-capt_gnn-loss0.json",
+    ]
+    assert cells == expected  # the expert, the baseline and the learned GNN
     assert all(json.loads((out / "cells" / c).read_text())["starts"][0]["converged"] for c in cells)
+    # --resume reads the cells it has (a marker written into one survives) and runs the missing ones
+    marked = out / "cells" / expected[1]
+    data = json.loads(marked.read_text())
+    data["marker"] = True
+    marked.write_text(json.dumps(data))
+    (out / "cells" / expected[2]).unlink()
+    assert main([*argv, "--out", str(out), "--quiet", "--resume"]) == 0
+    assert json.loads(marked.read_text())["marker"] and (out / "cells" / expected[2]).is_file()
+    # ... only from a sweep of the same settings: 3 seeds where it has 2 is bad input, nothing written
+    before = {p.name: p.read_bytes() for p in (out / "cells").iterdir()}
+    argv3 = [*argv[:5], "--seeds", "3", "--topologies", "complete", "--out", str(out), "--quiet", "--resume"]
+    assert main(argv3) == 2
+    assert "--resume" in capsys.readouterr().err
+    assert {p.name: p.read_bytes() for p in (out / "cells").iterdir()} == before
     # lloyd_local on a line stalls far above the reference (docs/tasks.md): success 0, exit 1
     argv = ["sweep", "--task", "coverage", "--controllers", "lloyd_local", "--topologies", "line"]
     argv += ["--sizes", "6", "--seeds", "2", "--max-duration", "5", "--out", str(tmp_path / "c"), "--quiet"]
@@ -193,7 +212,7 @@ def test_ctrl_c_keeps_the_finished_cells_and_exits_130(tmp_path):
     assert run.returncode == 130, stderr
     table = (out / "sweep.md").read_text()
     done = len(list((out / "cells").glob("*.json")))
-    assert f"Interrupted after {done} of 6 cells." in table
+    assert f"Interrupted after {done} of 9 cells." in table  # 3 sizes x capt, capt_flood, capt_gnn
     assert table.count("| cycle |") == done
 
 

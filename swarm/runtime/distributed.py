@@ -45,7 +45,7 @@ from swarm.scenarios.results import (
     write_metrics,
     write_partial_results,
 )
-from swarm.scenarios.scenario import Scenario, ScenarioError, parse_scenario, resolve_model_path
+from swarm.scenarios.scenario import Scenario, ScenarioError, parse_scenario, policy_path
 from swarm.scenarios.task_report import task_pictures
 
 log = logging.getLogger(__name__)
@@ -341,14 +341,22 @@ def _run_distributed(
             " (use --engine kinematic)"
         )
     _check_faults(scenario)
-    model = None
-    if scenario.controller.kind == "gnn":
-        model = resolve_model_path(scenario.controller.model, scenario_path).resolve()
-        from swarm.sim.policy import PolicyFormatError, load_policy
+    model = policy_path(scenario, scenario_path)
+    if model is not None:
+        model = model.resolve()
+        from swarm.sim.controller_kinds import robot_controller
 
         try:  # before any process starts: a bad file is bad input, not agents that exit with 1
-            load_policy(model, scenario.robot, scenario.robots.count, scenario.sim.control_period_s)
-        except PolicyFormatError as error:
+            robot_controller(
+                scenario.controller.kind,
+                scenario.robot,
+                policy_bytes=model.read_bytes(),
+                robot_count=scenario.robots.count,
+                control_period_s=scenario.sim.control_period_s,
+                options=scenario.controller.model_dump(),
+                task=scenario.task,
+            )
+        except ValueError as error:  # swarm.sim.policy.PolicyFormatError is a ValueError
             raise ScenarioError(f"controller.model: {model}: {error}") from None
         data = scenario.model_dump(mode="json")
         data["controller"]["model"] = str(model)  # the server reads the copy in the results directory

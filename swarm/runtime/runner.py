@@ -24,7 +24,7 @@ from swarm.scenarios.results import (
 from swarm.scenarios.safety_results import add_safety_results
 from swarm.scenarios.scenario import Scenario, ScenarioError, engine_warnings
 from swarm.scenarios.task_report import task_pictures
-from swarm.sim.controller_kinds import ControllerArgs, batched_controller
+from swarm.sim.controller_kinds import CONTROLLER_KINDS, ControllerArgs, batched_controller
 from swarm.sim.controllers import BatchedController
 from swarm.sim.kinematic import KinematicSim
 from swarm.sim.safety_filter import SafetyFilter
@@ -35,11 +35,9 @@ log = logging.getLogger(__name__)
 def build_controller(scenario: Scenario, scenario_path: Path | None = None) -> BatchedController:
     """The batched controller named by ``scenario.controller`` (``swarm.sim.controller_kinds``)."""
     spec = scenario.controller
-    policy = None
-    if spec.kind == "gnn":
-        from swarm.scenarios.scenario import resolve_model_path
+    from swarm.scenarios.scenario import policy_path
 
-        policy = resolve_model_path(spec.model, scenario_path)
+    policy = policy_path(scenario, scenario_path)
     args = ControllerArgs.from_spec(
         spec.model_dump(),
         scenario.robot,
@@ -51,7 +49,7 @@ def build_controller(scenario: Scenario, scenario_path: Path | None = None) -> B
     try:
         return batched_controller(spec.kind, args)
     except ValueError as error:  # swarm.sim.policy.PolicyFormatError is a ValueError
-        key = "controller.model" if spec.kind == "gnn" else "controller.kind"
+        key = "controller.model" if "model" in CONTROLLER_KINDS[spec.kind].options else "controller.kind"
         where = f"{policy}: " if policy is not None else ""
         raise ScenarioError(f"{key}: {where}{error}") from None
 

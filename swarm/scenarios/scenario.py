@@ -766,6 +766,18 @@ def resolve_model_path(model: str | None, scenario_path: Path | None = None) -> 
     raise ScenarioError(f"{source}controller.model: model file not found: {model}")
 
 
+def policy_path(scenario: Scenario, scenario_path: Path | None = None) -> Path | None:
+    """The policy file the scenario's controller runs: ``gnn``'s ``controller.model`` (default: the shipped
+    ``gnn_default.npz``); for another kind that takes a model (``capt_gnn``) its ``controller.model``
+    when given, else None (the kind loads its own shipped file); None for kinds without a model."""
+    spec = scenario.controller
+    if spec.kind == "gnn":
+        return resolve_model_path(spec.model, scenario_path)
+    if "model" in CONTROLLER_KINDS[spec.kind].options and spec.model is not None:
+        return resolve_model_path(spec.model, scenario_path)
+    return None
+
+
 def dump_scenario(scenario: Scenario) -> str:
     """The resolved scenario (every default filled in) as YAML."""
     return yaml.safe_dump(scenario.model_dump(mode="json"), sort_keys=False)

@@ -94,7 +94,9 @@ class TaskSweepConfig:
     @property
     def chosen_controllers(self) -> list[str]:
         task = registry.get(self.task)
-        return list(self.controllers) if self.controllers is not None else [*task.experts, *task.baselines]
+        if self.controllers is not None:
+            return list(self.controllers)
+        return [*task.experts, *task.baselines, *task.learned]
 
     @property
     def run_duration_s(self) -> float:
@@ -154,13 +156,14 @@ def cell_starts(config: TaskSweepConfig, topology: str, count: int) -> tuple[np.
 def run_chunk(
     config: TaskSweepConfig,
     section: Any,
-    controller: str,
+    controller: str | Any,
     poses: np.ndarray,
     adjacency: np.ndarray | None,
     loss: float,
     loss_seed: int,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Times ``(T,)`` and axle positions ``(T, B, N, 2)`` of one chunk of starts."""
+    """Times ``(T,)`` and axle positions ``(T, B, N, 2)`` of one chunk of starts (``controller``: a kind's
+    name, or a batched controller already built, as training's closed-loop check passes)."""
     cells, count = config.cells, poses.shape[1]
     robot = RobotParams(v_max_mps=config.v_max_mps)
     proximity = adjacency is None
@@ -176,7 +179,7 @@ def run_chunk(
         faults = LinkFaults([{"kind": "packet_loss", "p": loss}], config.control_period_s, seed=loss_seed)
     sim = KinematicSim(
         robot,
-        batched_controller(controller, args),
+        batched_controller(controller, args) if isinstance(controller, str) else controller,
         config.control_period_s,
         poses,
         adjacency=adjacency,
@@ -278,8 +281,32 @@ def summarize_cell(cell: dict, columns: tuple[str, ...]) -> dict:
     return row
 
 
-def run_task_sweep(config: TaskSweepConfig, out_dir: Path, progress: bool = True) -> list[dict]:
-    """Run every cell, write ``sweep.csv``, ``sweep.md``, ``sweep.png`` and ``cells/``; the rows."""
+def reusable_cells(config: TaskSweepConfig, out_dir: Path) -> bool:
+    """``out_dir`` holds cells of a sweep with this config but for its controllers (``--resume``): its
+    ``sweep_config.json`` equals this one in every other setting, so its cells' starts are these."""
+    path = out_dir / "sweep_config.json"
+    if not path.is_file():
+        return False
+    stored = json.loads(path.read_text())
+    current = json.loads(json.dumps(asdict(config)))
+    return {k: v for k, v in stored.items() if k != "controllers"} == {
+        k: v for k, v in current.items() if k != "controllers"
+    }
+
+
+def run_task_sweep(
+    config: TaskSweepConfig, out_dir: Path, progress: bool = True, resume: bool = False
+) -> list[dict]:
+    """Run every cell, write ``sweep.csv``, ``sweep.md``, ``sweep.png`` and ``cells/``; the rows.
+    ``resume``: a cell whose file ``out_dir`` already holds from a sweep of the same settings
+    (:func:`reusable_cells`; another list of controllers allowed) is read, not run again; with other
+    settings there, ScenarioError."""
+    if resume and (out_dir / "sweep_config.json").is_file() and not reusable_cells(config, out_dir):
+        raise ScenarioError(
+            f"--resume: {out_dir / 'sweep_config.json'} has other settings than this sweep (only"
+            " controllers may differ); give another --out"
+        )
+    reuse = resume and reusable_cells(config, out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "cells").mkdir(exist_ok=True)
     todo = [  # the small swarms of every graph first: an interrupted sweep has whole tables for them
@@ -309,9 +336,14 @@ def run_task_sweep(config: TaskSweepConfig, out_dir: Path, progress: bool = True
                 def on_progress(done: int, bar=bar) -> None:
                     bar.set_postfix_str(f"{done}/{config.seeds} starts")
 
-            cell = run_cell(config, topology, count, controller, loss, on_progress, starts[topology, count])
             name = f"{topology}-N{count}-{controller}-loss{loss:g}.json"
-            (out_dir / "cells" / name).write_text(json.dumps(cell) + "\n")
+            if reuse and (out_dir / "cells" / name).is_file():
+                cell = json.loads((out_dir / "cells" / name).read_text())
+            else:
+                cell = run_cell(
+                    config, topology, count, controller, loss, on_progress, starts[topology, count]
+                )
+                (out_dir / "cells" / name).write_text(json.dumps(cell) + "\n")
             rows.append(summarize_cell(cell, config.cells.columns))
             if bar is not None:
                 bar.update()

@@ -124,6 +124,45 @@ def _onboard_pack_flood(args: ControllerArgs):
     )
 
 
+def _formation_weights(args: ControllerArgs):
+    from pathlib import Path
+
+    from swarm.sim.formation_gnn import DEFAULT_MODEL_NAME, FormationGnnWeights
+
+    if args.policy is None:  # the shipped policy
+        return FormationGnnWeights.load(
+            Path(__file__).resolve().parent.parent.parent / "models" / DEFAULT_MODEL_NAME
+        )
+    return FormationGnnWeights.load(args.policy)
+
+
+def _capt_gnn(args: ControllerArgs):
+    from swarm.sim.formation_controllers import CaptGnn
+
+    return CaptGnn(
+        args.robot,
+        args.control_period_s,
+        _formation(args),
+        args.robot_count,
+        _formation_weights(args),
+        args.reverse,
+    )
+
+
+def _onboard_capt_gnn(args: ControllerArgs):
+    from swarm.sim.formation_gnn import OnboardCaptGnn
+
+    return OnboardCaptGnn(
+        args.robot,
+        args.control_period_s,
+        _formation(args),
+        args.robot_count,
+        args.robot_id,
+        _formation_weights(args),
+        args.reverse,
+    )
+
+
 def _lloyd(args: ControllerArgs):
     from swarm.sim.coverage_controllers import LloydExpert
 
@@ -242,6 +281,14 @@ CONTROLLER_KINDS: dict[str, ControllerKind] = {
             _capt_flood,
             _onboard_capt_flood,
             ("reverse",),
+            task="formation",
+        ),
+        ControllerKind(
+            "capt_gnn",
+            "formation: capt_flood's flood and provisional slot, a learned steering (controller.model)",
+            _capt_gnn,
+            _onboard_capt_gnn,
+            ("model", "reverse"),
             task="formation",
         ),
         ControllerKind(

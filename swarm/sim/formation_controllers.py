@@ -23,7 +23,8 @@ import numpy as np
 
 from swarm.core.experts import drive_toward_velocity
 from swarm.core.robot import RobotParams
-from swarm.core.tasks.formation import FormationSection, capt_assignment, placed_slots
+from swarm.core.tasks.formation import FormationSection, capt_assignment, placed_slots, sync_ratio
+from swarm.sim.formation_gnn import FormationGnnWeights, local_command, steering_features, to_world
 from swarm.sim.links import Links, heard_slots
 
 
@@ -82,6 +83,8 @@ class CaptFlood:
         self.slots = section.slot_positions(self.count)
         self._known: np.ndarray | None = None  # (B, N, N) what each target was computed from
         self._targets: np.ndarray | None = None  # (B, N, 2)
+        self._sync: np.ndarray | None = None  # (B, N)
+        self._known_fraction: np.ndarray | None = None  # (B, N)
 
     def merge(self, poses: np.ndarray, inbox: np.ndarray, heard: Links) -> np.ndarray:
         """``(B, N, N, 3)``: robot i's knowledge of tick k, its own of k-1 (``inbox[:, i]``, or its own
@@ -98,24 +101,67 @@ class CaptFlood:
             memory[new] = theirs[new]
         return memory
 
-    def act(
-        self, poses: np.ndarray, points: np.ndarray, inbox: np.ndarray, heard: Links
-    ) -> tuple[np.ndarray, np.ndarray]:
+    def update_targets(self, poses: np.ndarray, inbox: np.ndarray, heard: Links) -> np.ndarray:
+        """Merge (``merge``) and, for each robot whose known set grew, the CAPT assignment of the robots
+        it knows: its slot ``_targets`` ``(B, N, 2)``, ``_sync`` (its start-to-slot distance over the
+        largest of that assignment, ``capt_gnn``'s feature) and ``_known_fraction``. Returns the memory."""
         batch, count = poses.shape[:2]
         memory = self.merge(poses, inbox, heard)
         known = memory[..., 0] != 0.0
         if self._known is None or self._known.shape != known.shape:
             self._known = np.zeros_like(known)
             self._targets = np.zeros((batch, count, 2))
-        assert self._targets is not None
+            self._sync = np.zeros((batch, count))
+            self._known_fraction = np.zeros((batch, count))
+        assert self._targets is not None and self._sync is not None and self._known_fraction is not None
         for b, i in zip(*np.nonzero(np.any(known != self._known, axis=-1)), strict=True):
             members = np.flatnonzero(known[b, i])
             starts = memory[b, i, members, 1:]
             slots = placed_slots(self.section, starts, self.slots)
-            assignment = capt_assignment(starts, slots)
-            self._targets[b, i] = slots[assignment[np.searchsorted(members, i)]]
+            assigned = slots[capt_assignment(starts, slots)]
+            own = np.searchsorted(members, i)
+            self._targets[b, i] = assigned[own]
+            self._sync[b, i] = sync_ratio(starts, assigned, own)
+            self._known_fraction[b, i] = len(members) / count
             self._known[b, i] = known[b, i]
+        return memory
+
+    def act(
+        self, poses: np.ndarray, points: np.ndarray, inbox: np.ndarray, heard: Links
+    ) -> tuple[np.ndarray, np.ndarray]:
+        batch, count = poses.shape[:2]
+        memory = self.update_targets(poses, inbox, heard)
+        assert self._targets is not None
         u_world = drive_toward_velocity(
             poses, self._targets, self.robot.v_max_mps, self.control_period_s, self.reverse
         )
         return u_world, memory.reshape(batch, count, 3 * count)
+
+
+class CaptGnn(CaptFlood):
+    """``capt_gnn``, batched: ``capt_flood``'s flood and provisional slots, eq. (1)'s steering."""
+
+    def __init__(
+        self,
+        robot: RobotParams,
+        control_period_s: float,
+        section: FormationSection,
+        robot_count: int,
+        weights: FormationGnnWeights,
+        reverse: bool = True,
+    ):
+        super().__init__(robot, control_period_s, section, robot_count, reverse)
+        self.weights = weights
+        self.last_features: np.ndarray | None = None  # (B, N, 5) of the last tick (training reads it)
+
+    def act(
+        self, poses: np.ndarray, points: np.ndarray, inbox: np.ndarray, heard: Links
+    ) -> tuple[np.ndarray, np.ndarray]:
+        memory = self.update_targets(poses, inbox, heard)
+        assert self._targets is not None and self._sync is not None and self._known_fraction is not None
+        features, gate = steering_features(
+            poses, self._targets, self._sync, self._known_fraction, self.robot, self.control_period_s
+        )
+        self.last_features = features
+        u_local = local_command(self.weights, features, gate, self.robot.v_max_mps)
+        return to_world(poses, u_local), memory.reshape(poses.shape[0], poses.shape[1], 3 * self.count)

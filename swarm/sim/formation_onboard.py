@@ -14,7 +14,7 @@ import numpy as np
 
 from swarm.core.experts import drive_toward_velocity
 from swarm.core.robot import RobotParams
-from swarm.core.tasks.formation import FormationSection, capt_assignment, placed_slots
+from swarm.core.tasks.formation import FormationSection, capt_assignment, placed_slots, sync_ratio
 
 
 def first_memory(count: int, robot_id: int, pose: np.ndarray) -> np.ndarray:
@@ -58,14 +58,16 @@ class OnboardCaptFlood:
         self._memory: np.ndarray | None = None  # (N, 3)
         self._known = np.zeros(self.count, dtype=bool)  # what the target was computed from
         self._target = np.zeros(2)
+        self._sync = 0.0
+        self._known_fraction = 0.0
         # capt_assignment's scipy, imported now (before the agent is ready) and not in its first tick:
         # 12 agents importing it at once on 2 cores took 6-11 s there, and the sim moved on without them
         import scipy.optimize  # noqa: F401
 
-    def act_one(
-        self, pose: np.ndarray, neighbour_messages: np.ndarray, weights: np.ndarray | None = None
-    ) -> tuple[np.ndarray, np.ndarray]:
-        pose = np.asarray(pose, dtype=np.float64)
+    def update_target(self, pose: np.ndarray, neighbour_messages: np.ndarray) -> np.ndarray:
+        """Merge the heard messages and, when the known set grew, the CAPT assignment of the robots
+        known: ``_target``, ``_sync`` and ``_known_fraction`` (as the batched form's
+        ``update_targets``). Returns the memory."""
         if self._memory is None:
             self._memory = first_memory(self.count, self.robot_id, pose)
         memory = self._memory
@@ -74,9 +76,19 @@ class OnboardCaptFlood:
             members = np.flatnonzero(known)
             starts = memory[members, 1:]
             slots = placed_slots(self.section, starts, self.slots)
-            assignment = capt_assignment(starts, slots)
-            self._target = slots[assignment[np.searchsorted(members, self.robot_id)]]
+            assigned = slots[capt_assignment(starts, slots)]
+            own = int(np.searchsorted(members, self.robot_id))
+            self._target = assigned[own]
+            self._sync = sync_ratio(starts, assigned, own)
+            self._known_fraction = len(members) / self.count
             self._known = known
+        return memory
+
+    def act_one(
+        self, pose: np.ndarray, neighbour_messages: np.ndarray, weights: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        pose = np.asarray(pose, dtype=np.float64)
+        memory = self.update_target(pose, neighbour_messages)
         u_world = drive_toward_velocity(
             pose, self._target, self.robot.v_max_mps, self.control_period_s, self.reverse
         )

@@ -244,6 +244,14 @@ def translation_free_lower_bound(positions: np.ndarray, slots: np.ndarray, cells
     return max(0.0, least - spacing / math.sqrt(2.0))
 
 
+def sync_ratio(starts: np.ndarray, assigned: np.ndarray, own: int) -> float:
+    """``d_own / max_j d_j`` of the start-to-slot distances ``d`` of an assignment (0 when all are 0):
+    the expert's time-synchronized speed over ``v_max`` (constant along straight lines)."""
+    distance = np.sqrt(((assigned - starts) ** 2).sum(-1))
+    largest = distance.max()
+    return float(distance[own] / largest) if largest > 0.0 else 0.0
+
+
 def lower_bound_s(
     initial_positions: np.ndarray,
     section: FormationSection,
@@ -351,6 +359,7 @@ FORMATION = register(
         knows="its own pose, the public slot list and what its heard neighbours sent last tick",
         experts=("capt",),
         baselines=("capt_flood",),
+        learned=("capt_gnn",),
         metric="bottleneck: least largest axle-to-slot distance over assignments",
         success="every slot holds exactly one axle within tolerance_m, held hold_s to the end",
         bound="lower_bound",

@@ -8,6 +8,7 @@ ALGORITHMS: dict[str, str] = {
     "bc": "swarm.learn.train.bc",
     "dagger": "swarm.learn.train.dagger",
     "flood": "swarm.learn.train.flood",
+    "formation": "swarm.learn.train.formation",
     "dqn": "swarm.rl.dqn",
     "ppo": "swarm.learn.train.ppo",
 }
