@@ -53,12 +53,22 @@ class CaptExpert:
             self.targets = np.stack(
                 [placed[b][capt_assignment(poses[b, :, :2], placed[b])] for b in range(batch)]
             )
-        delta = self.targets - poses[..., :2]
-        remaining = np.sqrt((delta * delta).sum(-1))  # (B, N)
-        largest = remaining.max(axis=-1, keepdims=True)
-        speeds = self.robot.v_max_mps * remaining / np.where(largest > 0.0, largest, 1.0)
-        u_world = drive_toward_velocity(poses, self.targets, speeds, self.control_period_s, self.reverse)
+        u_world = capt_velocity(
+            poses, self.targets, self.robot.v_max_mps, self.control_period_s, self.reverse
+        )
         return u_world, inbox
+
+
+def capt_velocity(
+    poses: np.ndarray, targets: np.ndarray, v_max_mps: float, control_period_s: float, reverse: bool = True
+) -> np.ndarray:
+    """``capt``'s time-synchronized command ``(B, N, 2)``: every axle toward its target at
+    ``v_max d_i / max_j d_j`` of the current distances (module docstring)."""
+    delta = targets - poses[..., :2]
+    remaining = np.sqrt((delta * delta).sum(-1))  # (B, N)
+    largest = remaining.max(axis=-1, keepdims=True)
+    speeds = v_max_mps * remaining / np.where(largest > 0.0, largest, 1.0)
+    return drive_toward_velocity(poses, targets, speeds, control_period_s, reverse)
 
 
 class CaptFlood:

@@ -41,11 +41,10 @@ import numpy as np
 import torch
 
 from swarm.core import graphs, topologies
-from swarm.core.experts import drive_toward_velocity
 from swarm.core.robot import RobotParams, world_to_local
 from swarm.core.tasks import formation
 from swarm.learn.train import preset_with_overrides
-from swarm.sim.formation_controllers import CaptGnn
+from swarm.sim.formation_controllers import CaptGnn, capt_velocity
 from swarm.sim.formation_gnn import FEATURES, FormationGnnWeights
 from swarm.sim.kinematic import KinematicSim
 
@@ -136,12 +135,7 @@ def expert_targets(section, poses: np.ndarray) -> np.ndarray:
 
 def expert_local(poses: np.ndarray, targets: np.ndarray, robot: RobotParams, period_s: float) -> np.ndarray:
     """``capt``'s command at ``poses``, robot frame, before the wheels saturate (the label)."""
-    delta = targets - poses[..., :2]
-    remaining = np.sqrt((delta * delta).sum(-1))
-    largest = remaining.max(axis=-1, keepdims=True)
-    speeds = robot.v_max_mps * remaining / np.where(largest > 0.0, largest, 1.0)
-    u_world = drive_toward_velocity(poses, targets, speeds, period_s)
-    return world_to_local(u_world, poses[..., 2])
+    return world_to_local(capt_velocity(poses, targets, robot.v_max_mps, period_s), poses[..., 2])
 
 
 def episode(
@@ -164,15 +158,11 @@ def episode(
         if not recording.any():
             break
         u_world = sim.act()
-        label = expert_local(sim.poses, targets, robot, config.control_period_s)
+        expert_world = capt_velocity(sim.poses, targets, robot.v_max_mps, config.control_period_s)
+        label = world_to_local(expert_world, sim.poses[..., 2])  # expert_local, computed once
         assert learner.last_features is not None
         features.append(learner.last_features[recording].reshape(-1, len(FEATURES)))
         labels.append(label[recording].reshape(-1, 2))
-        delta = targets - sim.poses[..., :2]
-        remaining = np.sqrt((delta * delta).sum(-1))
-        largest = remaining.max(axis=-1, keepdims=True)
-        speeds = robot.v_max_mps * remaining / np.where(largest > 0.0, largest, 1.0)
-        expert_world = drive_toward_velocity(sim.poses, targets, speeds, config.control_period_s)
         sim.move(np.where(expert_drives[:, None, None], expert_world, u_world))
         held = formation.occupied(sim.poses[..., :2], slots, section.tolerance_m)
         held_for = np.where(held, held_for + 1, 0)
