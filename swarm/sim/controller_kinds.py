@@ -197,6 +197,45 @@ def _onboard_lloyd_flood(args: ControllerArgs):
     )
 
 
+def _coverage_weights(args: ControllerArgs):
+    from pathlib import Path
+
+    from swarm.sim.coverage_gnn import DEFAULT_MODEL_NAME, CoverageGnnWeights
+
+    if args.policy is None:  # the shipped policy
+        return CoverageGnnWeights.load(
+            Path(__file__).resolve().parent.parent.parent / "models" / DEFAULT_MODEL_NAME
+        )
+    return CoverageGnnWeights.load(args.policy)
+
+
+def _lloyd_gnn(args: ControllerArgs):
+    from swarm.sim.coverage_controllers import LloydGnn
+
+    return LloydGnn(
+        args.robot,
+        args.control_period_s,
+        _coverage(args),
+        args.robot_count,
+        _coverage_weights(args),
+        args.reverse,
+    )
+
+
+def _onboard_lloyd_gnn(args: ControllerArgs):
+    from swarm.sim.coverage_gnn import OnboardLloydGnn
+
+    return OnboardLloydGnn(
+        args.robot,
+        args.control_period_s,
+        _coverage(args),
+        args.robot_count,
+        args.robot_id,
+        _coverage_weights(args),
+        args.reverse,
+    )
+
+
 def _task_section(args: ControllerArgs, task: str):
     if getattr(args.task, "kind", None) != task:
         raise ValueError(f"this controller does the {task} task: it needs task: {{kind: {task}, ...}}")
@@ -313,6 +352,14 @@ CONTROLLER_KINDS: dict[str, ControllerKind] = {
             _lloyd_flood,
             _onboard_lloyd_flood,
             ("reverse",),
+            task="coverage",
+        ),
+        ControllerKind(
+            "lloyd_gnn",
+            "coverage: lloyd_flood's flood and cells, a learned steering (controller.model)",
+            _lloyd_gnn,
+            _onboard_lloyd_gnn,
+            ("model", "reverse"),
             task="coverage",
         ),
     )

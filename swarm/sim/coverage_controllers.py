@@ -33,7 +33,9 @@ import numpy as np
 from swarm.core.experts import drive_toward_velocity
 from swarm.core.robot import RobotParams
 from swarm.core.tasks.coverage import CoverageSection, density_centroid
+from swarm.sim.coverage_gnn import CoverageGnnWeights, coverage_features, region_scale_m
 from swarm.sim.links import Links, heard_slots
+from swarm.sim.steering_mlp import local_command, to_world
 
 
 @numba.njit(cache=True)
@@ -100,9 +102,10 @@ class _Coverage:
             poses, targets, self.robot.v_max_mps, self.control_period_s, self.reverse
         )
 
-    def cells(
+    def sums(
         self, own: np.ndarray, others: np.ndarray, valid: np.ndarray, radius_m: float | None
     ) -> np.ndarray:
+        """``(B, N, 3)``: every cell's mass and first moments (:func:`cell_sums`)."""
         sums = np.empty((*own.shape[:2], 3))
         radius_sq = math.inf if radius_m is None else float(radius_m) ** 2
         cell_sums(
@@ -114,7 +117,13 @@ class _Coverage:
             radius_sq,
             sums,
         )
-        return centroid_targets(sums, self.fallback)
+        return sums
+
+    def cells(
+        self, own: np.ndarray, others: np.ndarray, valid: np.ndarray, radius_m: float | None
+    ) -> np.ndarray:
+        """``(B, N, 2)``: every cell's centroid (the density's where a cell holds no mass)."""
+        return centroid_targets(self.sums(own, others, valid, radius_m), self.fallback)
 
 
 class LloydExpert(_Coverage):
@@ -123,13 +132,17 @@ class LloydExpert(_Coverage):
     message_dim = 0
     centralized = True
 
-    def act(
-        self, poses: np.ndarray, points: np.ndarray, inbox: np.ndarray, heard: Links
-    ) -> tuple[np.ndarray, np.ndarray]:
+    def velocity(self, poses: np.ndarray) -> np.ndarray:
+        """``(B, N, 2)``: every axle at full speed toward its true Voronoi cell's centroid."""
         batch, count = poses.shape[:2]
         others = np.broadcast_to(poses[:, None, :, :2], (batch, count, count, 2))
         valid = np.broadcast_to(~np.eye(count, dtype=bool), (batch, count, count))
-        return self.drive(poses, self.cells(poses[..., :2], others, valid, None)), inbox
+        return self.drive(poses, self.cells(poses[..., :2], others, valid, None))
+
+    def act(
+        self, poses: np.ndarray, points: np.ndarray, inbox: np.ndarray, heard: Links
+    ) -> tuple[np.ndarray, np.ndarray]:
+        return self.velocity(poses), inbox
 
 
 class LloydLocal(_Coverage):
@@ -173,6 +186,8 @@ class LloydFlood(_Coverage):
         super().__init__(robot, control_period_s, section, reverse)
         self.count = int(robot_count)
         self.message_dim = 3 * self.count
+        self._targets = np.zeros((0, self.count, 2))
+        self._mass = np.zeros((0, self.count))
 
     def merge(self, poses: np.ndarray, inbox: np.ndarray, heard: Links) -> np.ndarray:
         """``(B, N, N, 3)`` robot i's table of tick k: its own of k-1 (``inbox[:, i]``) one hop older,
@@ -192,12 +207,61 @@ class LloydFlood(_Coverage):
             memory[fresher, 1:] = theirs[fresher, 1:]
         return memory
 
+    def update_targets(self, poses: np.ndarray, inbox: np.ndarray, heard: Links) -> np.ndarray:
+        """Merge and take every robot's cell among those it knows: sets ``_targets (B, N, 2)`` and
+        ``_mass (B, N)`` (each cell's) and returns the tables ``(B, N, N, 3)``."""
+        count = poses.shape[1]
+        memory = self.merge(poses, inbox, heard)
+        valid = memory[..., 0] > 0.0
+        valid[:, np.arange(count), np.arange(count)] = False  # itself is `own`
+        sums = self.sums(poses[..., :2], memory[..., 1:], valid, None)
+        self._targets = centroid_targets(sums, self.fallback)
+        self._mass = sums[..., 0]
+        return memory
+
     def act(
         self, poses: np.ndarray, points: np.ndarray, inbox: np.ndarray, heard: Links
     ) -> tuple[np.ndarray, np.ndarray]:
         batch, count = poses.shape[:2]
-        memory = self.merge(poses, inbox, heard)
-        valid = memory[..., 0] > 0.0
-        valid[:, np.arange(count), np.arange(count)] = False  # itself is `own`
-        targets = self.cells(poses[..., :2], memory[..., 1:], valid, None)
-        return self.drive(poses, targets), memory.reshape(batch, count, 3 * count)
+        memory = self.update_targets(poses, inbox, heard)
+        return self.drive(poses, self._targets), memory.reshape(batch, count, 3 * count)
+
+
+class LloydGnn(LloydFlood):
+    """``lloyd_gnn``, batched: ``lloyd_flood``'s flood and cells, a learned steering
+    (``swarm.sim.coverage_gnn``)."""
+
+    def __init__(
+        self,
+        robot: RobotParams,
+        control_period_s: float,
+        section: CoverageSection,
+        robot_count: int,
+        weights: CoverageGnnWeights,
+        reverse: bool = True,
+    ):
+        super().__init__(robot, control_period_s, section, robot_count, reverse)
+        self.policy = weights  # (self.weights are the quadrature's)
+        self.scale_m = region_scale_m(self.points)
+        self.last_features: np.ndarray | None = None  # (B, N, 8) of the last tick (training reads it)
+
+    def act(
+        self, poses: np.ndarray, points: np.ndarray, inbox: np.ndarray, heard: Links
+    ) -> tuple[np.ndarray, np.ndarray]:
+        batch, count = poses.shape[:2]
+        memory = self.update_targets(poses, inbox, heard)
+        own = np.broadcast_to(np.eye(count, dtype=bool), (batch, count, count))
+        features, gate = coverage_features(
+            poses,
+            self._targets,
+            memory,
+            own,
+            self._mass,
+            self.fallback,
+            self.scale_m,
+            self.robot,
+            self.control_period_s,
+        )
+        self.last_features = features
+        u_local = local_command(self.policy, features, gate, self.robot.v_max_mps)
+        return to_world(poses, u_local), memory.reshape(batch, count, 3 * count)

@@ -16,6 +16,28 @@ from swarm.core.robot import RobotParams
 from swarm.core.tasks.coverage import CoverageSection, density_centroid
 
 
+def cell_moments(
+    own: np.ndarray,
+    others: np.ndarray,
+    points: np.ndarray,
+    weights: np.ndarray,
+    fallback: np.ndarray,
+    radius_m: float | None = None,
+) -> tuple[float, np.ndarray]:
+    """The mass ``M`` and centroid ``(2,)`` of the cell of ``own (2,)`` among ``others (K, 2)`` (module
+    docstring; the centroid is ``fallback`` where ``M`` is 0)."""
+    dx, dy = points[:, 0] - own[0], points[:, 1] - own[1]
+    mine = dx * dx + dy * dy
+    inside = np.ones(len(points), dtype=bool) if radius_m is None else mine <= float(radius_m) ** 2
+    for other in np.asarray(others, dtype=np.float64).reshape(-1, 2):
+        ex, ey = points[:, 0] - other[0], points[:, 1] - other[1]
+        inside &= ~(ex * ex + ey * ey < mine)
+    mass = float(weights[inside].sum())
+    if mass <= 0.0:
+        return 0.0, np.array(fallback, dtype=np.float64)
+    return mass, (weights[inside] @ points[inside]) / mass
+
+
 def cell_centroid(
     own: np.ndarray,
     others: np.ndarray,
@@ -25,16 +47,7 @@ def cell_centroid(
     radius_m: float | None = None,
 ) -> np.ndarray:
     """``(2,)`` the centroid of the cell of ``own (2,)`` among ``others (K, 2)`` (module docstring)."""
-    dx, dy = points[:, 0] - own[0], points[:, 1] - own[1]
-    mine = dx * dx + dy * dy
-    inside = np.ones(len(points), dtype=bool) if radius_m is None else mine <= float(radius_m) ** 2
-    for other in np.asarray(others, dtype=np.float64).reshape(-1, 2):
-        ex, ey = points[:, 0] - other[0], points[:, 1] - other[1]
-        inside &= ~(ex * ex + ey * ey < mine)
-    mass = float(weights[inside].sum())
-    if mass <= 0.0:
-        return np.array(fallback, dtype=np.float64)
-    return (weights[inside] @ points[inside]) / mass
+    return cell_moments(own, others, points, weights, fallback, radius_m)[1]
 
 
 class _OnboardCoverage:
@@ -103,17 +116,28 @@ class OnboardLloydFlood(_OnboardCoverage):
         self.robot_id = int(robot_id)
         self.message_dim = 3 * self.count
         self._table = np.zeros((self.count, 3))  # what it sent last tick
+        self._target = np.zeros(2)
+        self._mass = 0.0
+
+    def update_target(self, pose: np.ndarray, neighbour_messages: np.ndarray) -> np.ndarray:
+        """Merge the heard tables into its own and take its cell among every robot it knows: sets
+        ``_target``, ``_mass`` (its cell's) and ``_known`` (the mask of robots it knows, itself
+        included). Returns the table it sends."""
+        table = self._table.copy()
+        table[:, 0] = np.where(table[:, 0] > 0.0, table[:, 0] + 1.0, 0.0)
+        table[self.robot_id] = (1.0, pose[0], pose[1])
+        merge_freshest(table, neighbour_messages)
+        others = table[:, 0] > 0.0
+        others[self.robot_id] = False
+        self._mass, self._target = cell_moments(
+            pose[:2], table[others, 1:], self.points, self.weights, self.fallback
+        )
+        self._table = table
+        return table
 
     def act_one(
         self, pose: np.ndarray, neighbour_messages: np.ndarray, weights: np.ndarray | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
         pose = np.asarray(pose, dtype=np.float64)
-        table = self._table.copy()
-        table[:, 0] = np.where(table[:, 0] > 0.0, table[:, 0] + 1.0, 0.0)
-        table[self.robot_id] = (1.0, pose[0], pose[1])
-        merge_freshest(table, neighbour_messages)
-        known = table[:, 0] > 0.0
-        known[self.robot_id] = False
-        target = cell_centroid(pose[:2], table[known, 1:], self.points, self.weights, self.fallback)
-        self._table = table
-        return self.drive(pose, target), table.reshape(-1).copy()
+        table = self.update_target(pose, neighbour_messages)
+        return self.drive(pose, self._target), table.reshape(-1).copy()

@@ -27,85 +27,44 @@ direction separately: a Cartesian output fitted to commands toward a slot the ro
 is their average, shorter than any of them (measured: 3-5% slower than ``capt_flood`` at N <= 12).
 The robot's wheels saturate (1) as every controller's do.
 
-Policy file: ``.npz`` with ``format`` (``FORMAT``), ``layers`` (their count), ``w<k>``/``b<k>`` and
-``meta`` (JSON: the training configuration and data). The batched form
+The MLP, eq. (1) and the policy file (format ``formation_gnn/1``) are ``swarm.sim.steering_mlp``'s,
+shared with the coverage controller ``lloyd_gnn``. The batched form
 (``swarm.sim.formation_controllers.CaptGnn``) and the per-robot one (:class:`OnboardCaptGnn`, here:
 numpy only, what the agents import) share :func:`local_command`.
 """
 
 from __future__ import annotations
 
-import io
-import json
-from dataclasses import dataclass, field
-from pathlib import Path
-from typing import Any
-
 import numpy as np
 
 from swarm.core.robot import RobotParams
 from swarm.core.tasks.formation import FormationSection
 from swarm.sim.formation_onboard import OnboardCaptFlood
+from swarm.sim.steering_mlp import (
+    PolicyFileError,
+    SteeringMlp,
+    local_command,
+    target_features,
+    to_world,
+)
 
-FORMAT = "formation_gnn/1"
 FEATURES = ("dir_x", "dir_y", "near", "sync", "known")
 DEFAULT_MODEL_NAME = "formation/capt_gnn.npz"
 """The shipped policy, below ``<project root>/models`` (``swarm train --algo formation``; its own folder:
 ``models/*.npz`` are rendezvous policies)."""
 
-
-class FormationPolicyError(ValueError):
-    """A file that is not a formation GNN policy (names the reason)."""
+FormationPolicyError = PolicyFileError
 
 
-@dataclass(frozen=True)
-class FormationGnnWeights:
-    """The MLP ``g`` of eq. (1): ``weights[k] (in, out)``, ``biases[k] (out,)``; tanh between layers."""
+class FormationGnnWeights(SteeringMlp):
+    """The MLP ``g`` of eq. (1) for ``capt_gnn`` (``swarm.sim.steering_mlp``)."""
 
-    weights: tuple[np.ndarray, ...]
-    biases: tuple[np.ndarray, ...]
-    meta: dict = field(default_factory=dict)
+    FORMAT = "formation_gnn/1"
+    FEATURES = FEATURES
+    KIND = "capt_gnn"
 
-    @classmethod
-    def load(cls, source: str | Path | bytes) -> FormationGnnWeights:
-        """From a policy file's path or bytes; :class:`FormationPolicyError` naming what is wrong."""
-        try:
-            data = np.load(io.BytesIO(source) if isinstance(source, bytes) else source, allow_pickle=False)
-        except (OSError, ValueError) as error:
-            raise FormationPolicyError(f"not a policy file ({error})") from None
-        with data:
-            found = str(data["format"]) if "format" in data.files else None
-            if found != FORMAT:
-                raise FormationPolicyError(f"format {found!r}, expected {FORMAT!r} (a capt_gnn policy)")
-            layers = int(data["layers"])
-            weights = tuple(np.asarray(data[f"w{k}"], dtype=np.float64) for k in range(layers))
-            biases = tuple(np.asarray(data[f"b{k}"], dtype=np.float64) for k in range(layers))
-            meta = json.loads(str(data["meta"]))
-        if weights[0].shape[0] != len(FEATURES) or weights[-1].shape[1] != 3:
-            raise FormationPolicyError(
-                f"layer shapes {[w.shape for w in weights]}: want {len(FEATURES)} in, 3 out"
-            )
-        return cls(weights, biases, meta)
 
-    def save(self, path: Path) -> None:
-        arrays: dict[str, Any] = {
-            "format": FORMAT,
-            "layers": len(self.weights),
-            "meta": json.dumps(self.meta),
-        }
-        arrays |= {f"w{k}": w for k, w in enumerate(self.weights)} | {
-            f"b{k}": b for k, b in enumerate(self.biases)
-        }
-        np.savez(path, **arrays)
-
-    def __call__(self, features: np.ndarray) -> np.ndarray:
-        """``g(f)``: ``(..., 5) -> (..., 3)``."""
-        hidden = np.asarray(features, dtype=np.float64)
-        for k, (weight, bias) in enumerate(zip(self.weights, self.biases, strict=True)):
-            hidden = hidden @ weight + bias
-            if k < len(self.weights) - 1:
-                hidden = np.tanh(hidden)
-        return hidden
+FORMAT = FormationGnnWeights.FORMAT
 
 
 def steering_features(
@@ -118,37 +77,8 @@ def steering_features(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Eq. (1)'s features ``(..., 5)`` and gate ``min(rho_n, 1)`` ``(...)`` from poses ``(..., 3)``, the
     provisional slots ``(..., 2)`` and the ``sync`` and ``known`` fractions ``(...)``."""
-    theta = poses[..., 2]
-    cos, sin = np.cos(theta), np.sin(theta)
-    delta = targets - poses[..., :2]
-    local_x = cos * delta[..., 0] + sin * delta[..., 1]
-    local_y = -sin * delta[..., 0] + cos * delta[..., 1]
-    rho = np.sqrt(local_x * local_x + local_y * local_y)
-    safe = np.where(rho > 0.0, rho, 1.0)
-    gate = np.minimum(rho / (robot.v_max_mps * control_period_s), 1.0)
-    features = np.stack([local_x / safe, local_y / safe, gate, sync, known], axis=-1)
-    return features, gate
-
-
-def local_command(
-    weights: FormationGnnWeights, features: np.ndarray, gate: np.ndarray, v_max_mps: float
-) -> np.ndarray:
-    """Eq. (1): ``u_local = v_max min(rho_n, 1) clip(c, 0, 1) (a, b) / |(a, b)|`` ``(..., 2)``, before the
-    wheels saturate (a zero direction ``(a, b)`` gives no command)."""
-    output = weights(features)
-    direction = output[..., :2]
-    norm = np.sqrt((direction * direction).sum(-1))
-    unit = direction / np.where(norm > 0.0, norm, 1.0)[..., None]
-    speed = np.clip(output[..., 2], 0.0, 1.0) if weights.meta.get("speed") == "imitated" else 1.0
-    return (v_max_mps * gate * speed)[..., None] * unit
-
-
-def to_world(poses: np.ndarray, u_local: np.ndarray) -> np.ndarray:
-    """The robot-frame point velocity in the world frame."""
-    cos, sin = np.cos(poses[..., 2]), np.sin(poses[..., 2])
-    return np.stack(
-        [cos * u_local[..., 0] - sin * u_local[..., 1], sin * u_local[..., 0] + cos * u_local[..., 1]], -1
-    )
+    direction, gate = target_features(poses, targets, robot, control_period_s)
+    return np.concatenate([direction, np.stack([sync, known], axis=-1)], axis=-1), gate
 
 
 class OnboardCaptGnn(OnboardCaptFlood):

@@ -9,6 +9,7 @@ ALGORITHMS: dict[str, str] = {
     "dagger": "swarm.learn.train.dagger",
     "flood": "swarm.learn.train.flood",
     "formation": "swarm.learn.train.formation",
+    "coverage": "swarm.learn.train.coverage",
     "dqn": "swarm.rl.dqn",
     "ppo": "swarm.learn.train.ppo",
 }

@@ -44,6 +44,7 @@ from swarm.core import graphs, topologies
 from swarm.core.robot import RobotParams, world_to_local
 from swarm.core.tasks import formation
 from swarm.learn.train import preset_with_overrides
+from swarm.learn.train.steering import Mlp, fit
 from swarm.sim.formation_controllers import CaptGnn, capt_velocity
 from swarm.sim.formation_gnn import FEATURES, FormationGnnWeights
 from swarm.sim.kinematic import KinematicSim
@@ -169,64 +170,7 @@ def episode(
     return np.concatenate(features), np.concatenate(labels)
 
 
-# ------------------------------------------------------------------------------------ the fit
-class Mlp(torch.nn.Module):
-    def __init__(self, hidden: int):
-        super().__init__()
-        self.linears: list[torch.nn.Linear] = [
-            torch.nn.Linear(len(FEATURES), hidden),
-            torch.nn.Linear(hidden, hidden),
-            torch.nn.Linear(hidden, 3),
-        ]
-        self.layers = torch.nn.ModuleList(self.linears)
-        with torch.no_grad():  # the speed starts at half (a clipped output at 0 or 1 passes no gradient)
-            self.linears[-1].bias[2] = 0.5
-
-    def forward(self, features: torch.Tensor) -> torch.Tensor:
-        hidden = features
-        for k, layer in enumerate(self.linears):
-            hidden = layer(hidden)
-            if k < len(self.linears) - 1:
-                hidden = torch.tanh(hidden)
-        return hidden
-
-    def export(self, meta: dict) -> FormationGnnWeights:
-        return FormationGnnWeights(
-            tuple(layer.weight.detach().double().numpy().T.copy() for layer in self.linears),
-            tuple(layer.bias.detach().double().numpy().copy() for layer in self.linears),
-            meta,
-        )
-
-
-def polar_loss(
-    features: torch.Tensor, output: torch.Tensor, labels: torch.Tensor, imitate_speed: bool = True
-) -> torch.Tensor:
-    """Eq. (1)'s speed and direction against the label's (module docstring); labels in units of v_max."""
-    gate = features[:, 2]
-    length = labels.norm(dim=-1)
-    speed_label = torch.where(gate > 0, length / torch.clamp(gate, min=1e-9), torch.zeros_like(length))
-    speed_loss = (torch.clamp(output[:, 2], 0.0, 1.0) - torch.clamp(speed_label, max=1.0)) ** 2
-    cosine = (output[:, :2] * labels).sum(-1) / (output[:, :2].norm(dim=-1) * length + 1e-9)
-    moving = (length > 1e-9).float()
-    return ((speed_loss if imitate_speed else 0.0) + moving * (1.0 - cosine)).mean()
-
-
-def fit(
-    model: Mlp, optimiser, features: np.ndarray, labels: np.ndarray, config: FormationConfig, rng
-) -> float:
-    x = torch.from_numpy(features).float()
-    y = torch.from_numpy(labels / config.v_max_mps).float()
-    total = 0.0
-    for _ in range(config.steps):
-        rows = torch.from_numpy(rng.integers(0, len(x), config.batch_rows))
-        loss = polar_loss(x[rows], model(x[rows]), y[rows], config.speed == "imitated")
-        optimiser.zero_grad()
-        loss.backward()
-        optimiser.step()
-        total += float(loss.detach())
-    return total / max(config.steps, 1)
-
-
+# ------------------------------------------------------------------------------------ the check
 def closed_loop(config: FormationConfig, weights: FormationGnnWeights | str, seed: int) -> float:
     """Median time / lower bound over ``eval_cells`` (3 where a start does not succeed) of ``capt_gnn``
     with ``weights``, or of the controller kind named (the baseline, on the same starts)."""
@@ -265,7 +209,7 @@ def train(config: FormationConfig) -> Path:
     torch.manual_seed(config.seed)
     torch.set_num_threads(1)
     rng = np.random.default_rng(config.seed)
-    model = Mlp(config.hidden)
+    model = Mlp(len(FEATURES), config.hidden)
     optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
     meta = {"config": asdict(config), "features": list(FEATURES), "speed": config.speed}
     features: list[np.ndarray] = []
@@ -275,7 +219,7 @@ def train(config: FormationConfig) -> Path:
     started_s = time.perf_counter()
     baseline = closed_loop(config, "capt_flood", config.seed + 1000)  # the same starts as every check
     for iteration in range(config.iterations):
-        weights = model.export(meta)
+        weights = model.export(FormationGnnWeights, meta)
         beta = 1.0 if iteration == 0 else config.beta_decay**iteration
         # -- episodes: the expert or the learner drives, the expert labels every state
         for count in config.counts:
@@ -285,9 +229,20 @@ def train(config: FormationConfig) -> Path:
                 labels.append(new_labels)
         all_features, all_labels = np.concatenate(features), np.concatenate(labels)
         # -- fit every row so far
-        loss = fit(model, optimiser, all_features, all_labels, config, rng)
+        loss = fit(
+            model,
+            optimiser,
+            all_features,
+            all_labels,
+            steps=config.steps,
+            batch_rows=config.batch_rows,
+            v_max_mps=config.v_max_mps,
+            imitate_speed=config.speed == "imitated",
+            rng=rng,
+        )
         # -- closed-loop check
-        weights = model.export(meta | {"iteration": iteration, "rows": len(all_features)})
+        trained = meta | {"iteration": iteration, "rows": len(all_features)}
+        weights = model.export(FormationGnnWeights, trained)
         ratio = closed_loop(config, weights, config.seed + 1000)
         rows_log.append(
             {

@@ -1,0 +1,222 @@
+"""Imitation of the coverage expert ``lloyd`` by ``lloyd_gnn`` (``swarm.sim.coverage_gnn``): DAgger.
+
+Reads top to bottom: hyperparameters, episodes (rollout + expert labels), the closed-loop check, the
+loop (the fit is ``swarm.learn.train.steering``'s, shared with ``capt_gnn``).
+
+- An episode is a batch of ``envs`` starts at every N of ``counts`` (all <= 12) on every graph of
+  ``graphs``: the coverage sweep's cells (``swarm.scenarios.task_sweep.cell_starts``: every robot in
+  one quadrant of a square of side ``0.9 sqrt(N)`` m, uniform density; disk graphs of
+  ``disk_radius_m``), run in ``KinematicSim`` for ``episode_s``. Every tick each robot runs
+  ``lloyd_gnn``'s flood and cell (fixed, not learned) and its features are recorded with the expert's
+  label: the point velocity, in the robot's frame, that centralized Lloyd commands at that state
+  (toward the centroid of its true Voronoi cell, ``drive_toward_velocity``).
+- Who drives: iteration 0 the expert everywhere (behavioural cloning); iteration i >= 1 the expert in a
+  share ``beta_decay ** i`` of the environments and the current learner in the others (DAgger).
+- The fit: every row so far; the direction only (eq. (1) drives at the expert's speed
+  ``v_max min(rho_n, 1)`` toward the robot's own cell's centroid).
+- Every iteration's weights are checked in closed loop on ``eval_cells``: the median over their starts
+  of the first time ``H <= 1.05 H_ref`` (``eval_s`` where never), beside ``lloyd_flood``'s on the same
+  starts; the best iterate is the result (``policy.npz``).
+
+Seeded: numpy and torch from ``seed``, torch on one thread: the same command on the same machine gives
+the same weights.
+
+Run: ``swarm train --algo coverage --out runs/coverage`` (``models/README.md``: the shipped file).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import logging
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from swarm.core.robot import RobotParams, world_to_local
+from swarm.core.tasks import coverage
+from swarm.learn.train import preset_with_overrides
+from swarm.learn.train.steering import Mlp, fit
+from swarm.scenarios.task_sweep import TaskSweepConfig, cell_starts, run_chunk
+from swarm.sim.coverage_controllers import LloydExpert, LloydGnn
+from swarm.sim.coverage_gnn import FEATURES, CoverageGnnWeights
+from swarm.sim.kinematic import KinematicSim
+
+log = logging.getLogger(__name__)
+
+
+# ------------------------------------------------------------------------------------ hyperparameters
+@dataclass(frozen=True)
+class CoverageConfig:
+    out: str = "runs/coverage"
+    seed: int = 0
+    counts: tuple[int, ...] = (4, 6, 8, 10, 12)  # every N trained on (the issue: N <= 12)
+    graphs: tuple[str, ...] = ("complete", "cycle", "line", "random", "disk")
+    envs: int = 8  # starts per (N, graph) and iteration
+    iterations: int = 5
+    beta_decay: float = 0.5  # the expert's share of the environments in iteration i >= 1
+    episode_s: float = 8.0
+    disk_radius_m: float = 2.0  # the coverage sweep's
+    v_max_mps: float = 0.5
+    control_period_s: float = 0.05
+    hidden: int = 32
+    learning_rate: float = 3e-3
+    steps: int = 4000  # Adam steps per iteration
+    batch_rows: int = 2048
+    eval_cells: tuple[tuple[str, int], ...] = (("line", 12), ("cycle", 12), ("disk", 12), ("complete", 8))
+    eval_starts: int = 8
+    eval_s: float = 15.0
+    progress: bool = True
+
+
+PRESETS: dict[str, CoverageConfig] = {
+    "default": CoverageConfig(),
+    "smoke": CoverageConfig(
+        counts=(4, 6), envs=2, iterations=2, steps=50, eval_starts=2, episode_s=3.0, eval_s=4.0
+    ),
+}
+
+
+def make_config(preset: str = "default", overrides: dict | None = None) -> CoverageConfig:
+    overrides = dict(overrides or {})
+    if "eval_cells" in overrides:
+        overrides["eval_cells"] = tuple(tuple(cell) for cell in overrides["eval_cells"])
+    return preset_with_overrides("coverage", PRESETS, preset, overrides, ("counts", "graphs"))
+
+
+def _cells(
+    config: CoverageConfig, seed: int, number: int, duration_s: float | None = None
+) -> TaskSweepConfig:
+    return TaskSweepConfig(
+        task="coverage",
+        seeds=number,
+        seed=seed,
+        v_max_mps=config.v_max_mps,
+        control_period_s=config.control_period_s,
+        disk_radius_m=config.disk_radius_m,
+        duration_s=duration_s,
+    )
+
+
+# ------------------------------------------------------------------------------------ episodes
+def episode(
+    config: CoverageConfig, weights: CoverageGnnWeights, beta: float, topology: str, count: int, rng
+) -> tuple[np.ndarray, np.ndarray]:
+    """Rows ``(features (R, 8), labels (R, 2))`` of one batch of starts (module docstring)."""
+    robot = RobotParams(v_max_mps=config.v_max_mps)
+    section = coverage.sweep_section(count)
+    poses, adjacency = cell_starts(_cells(config, int(rng.integers(2**31)), config.envs), topology, count)
+    learner = LloydGnn(robot, config.control_period_s, section, count, weights)
+    expert = LloydExpert(robot, config.control_period_s, section, reverse=True)
+    sim = KinematicSim(
+        robot,
+        learner,
+        config.control_period_s,
+        poses,
+        adjacency=adjacency,
+        disk_radius_m=config.disk_radius_m if adjacency is None else None,
+    )
+    expert_drives = rng.random(len(poses)) < beta
+    features, labels = [], []
+    for _ in range(round(config.episode_s / config.control_period_s)):
+        u_world = sim.act()
+        expert_world = expert.velocity(sim.poses)
+        assert learner.last_features is not None
+        features.append(learner.last_features.reshape(-1, len(FEATURES)))
+        labels.append(world_to_local(expert_world, sim.poses[..., 2]).reshape(-1, 2))
+        sim.move(np.where(expert_drives[:, None, None], expert_world, u_world))
+    return np.concatenate(features), np.concatenate(labels)
+
+
+# ------------------------------------------------------------------------------------ the check
+def closed_loop(config: CoverageConfig, weights: CoverageGnnWeights | str, seed: int) -> float:
+    """Median over ``eval_cells``' starts of the first time within ``1.05 H_ref`` (``eval_s`` where never)
+    of ``lloyd_gnn`` with ``weights``, or of the controller kind named (on the same starts)."""
+    times = []
+    robot = RobotParams(v_max_mps=config.v_max_mps)
+    for topology, count in config.eval_cells:
+        section = coverage.sweep_section(count)
+        sweep = _cells(config, seed, config.eval_starts, config.eval_s)
+        poses, adjacency = cell_starts(sweep, topology, count)
+        controller = (
+            weights
+            if isinstance(weights, str)
+            else LloydGnn(robot, config.control_period_s, section, count, weights)
+        )
+        frame_times, frames = run_chunk(sweep, section, controller, poses, adjacency, 0.0, 0)
+        for b in range(len(poses)):
+            first = coverage.outcome(frame_times, frames[:, b], section, config.v_max_mps)["first_within_s"]
+            times.append(config.eval_s if first is None else first)
+    return float(np.median(times))
+
+
+# ------------------------------------------------------------------------------------ the loop
+def train(config: CoverageConfig) -> Path:
+    out = Path(config.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "config.json").write_text(json.dumps(asdict(config), indent=2) + "\n")
+    torch.manual_seed(config.seed)
+    torch.set_num_threads(1)
+    rng = np.random.default_rng(config.seed)
+    model = Mlp(len(FEATURES), config.hidden)
+    optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
+    meta = {"config": asdict(config), "features": list(FEATURES), "speed": "full"}
+    features: list[np.ndarray] = []
+    labels: list[np.ndarray] = []
+    best: tuple[float, CoverageGnnWeights] | None = None
+    rows_log = []
+    started_s = time.perf_counter()
+    baseline = closed_loop(config, "lloyd_flood", config.seed + 1000)  # the same starts as every check
+    expert = closed_loop(config, "lloyd", config.seed + 1000)
+    for iteration in range(config.iterations):
+        weights = model.export(CoverageGnnWeights, meta)
+        beta = 1.0 if iteration == 0 else config.beta_decay**iteration
+        # -- episodes: the expert or the learner drives, the expert labels every state
+        for count in config.counts:
+            for topology in config.graphs:
+                new_features, new_labels = episode(config, weights, beta, topology, count, rng)
+                features.append(new_features)
+                labels.append(new_labels)
+        all_features, all_labels = np.concatenate(features), np.concatenate(labels)
+        # -- fit every row so far (the direction)
+        loss = fit(
+            model,
+            optimiser,
+            all_features,
+            all_labels,
+            steps=config.steps,
+            batch_rows=config.batch_rows,
+            v_max_mps=config.v_max_mps,
+            imitate_speed=False,
+            rng=rng,
+        )
+        # -- closed-loop check
+        weights = model.export(CoverageGnnWeights, meta | {"iteration": iteration, "rows": len(all_features)})
+        first_within_s = closed_loop(config, weights, config.seed + 1000)
+        rows_log.append(
+            {
+                "iteration": iteration,
+                "beta": beta,
+                "rows": len(all_features),
+                "loss": loss,
+                "median_first_within_s": first_within_s,
+                "lloyd_flood_median_first_within_s": baseline,
+                "lloyd_median_first_within_s": expert,
+                "elapsed_s": round(time.perf_counter() - started_s, 1),
+            }
+        )
+        if config.progress:
+            log.info("%s", json.dumps(rows_log[-1]))
+        if best is None or first_within_s < best[0]:
+            best = (first_within_s, weights)
+    assert best is not None
+    with (out / "log.csv").open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=list(rows_log[0]))
+        writer.writeheader()
+        writer.writerows(rows_log)
+    path = out / "policy.npz"
+    best[1].save(path)
+    return path

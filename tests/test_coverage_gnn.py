@@ -1,0 +1,182 @@
+"""The learned coverage controller ``lloyd_gnn`` (``swarm.sim.coverage_gnn``) and its training.
+
+Oracles: hand-made poses and tables (the features), the definition of decentralization (a robot's
+first k ticks do not depend on robots more than k hops away), the quadrature's cost recomputed here
+from the raw positions (closed loop, the PyBullet run), and files written by hand for the loader. The
+per-robot form against the batched one, every topology and link fault: ``tests/test_contract.py``
+(every controller kind)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from swarm.core import graphs, tasks
+from swarm.core.robot import RobotParams
+from swarm.core.tasks import coverage
+from swarm.learn.train import coverage as train_coverage
+from swarm.sim.controller_kinds import ControllerArgs, batched_controller, onboard_controller
+from swarm.sim.coverage_gnn import FEATURES, CoverageGnnWeights, coverage_features
+from swarm.sim.formation_gnn import FormationGnnWeights
+from swarm.sim.kinematic import KinematicSim
+from swarm.sim.steering_mlp import PolicyFileError, local_command
+
+ROOT = Path(__file__).resolve().parent.parent
+ROBOT = RobotParams()
+DT = 0.05
+
+
+def _random_weights(seed: int) -> CoverageGnnWeights:
+    rng = np.random.default_rng(seed)
+    shapes = [(len(FEATURES), 8), (8, 8), (8, 3)]
+    return CoverageGnnWeights(
+        tuple(rng.normal(0, 1, shape) for shape in shapes),
+        tuple(rng.normal(0, 1, shape[1]) for shape in shapes),
+    )
+
+
+def test_features_by_hand():
+    """Robot 1 of 4 at (2, 3) heading +y. Its cell's centroid is 1 m in world +x: (0, -1) in its frame
+    (to its right). It knows itself, robot 0 (age 3: 2 ticks old) and robot 3 (age 5: 4 ticks old), not
+    robot 2: known 3/4, stale (2 + 4) / 2 / 4. Its cell holds 0.5 of the density: 0.5 N / 4 = 0.5. The
+    density's centroid is 4 m in world -y, (-4, 0) in its frame, over the scale 8 m: (-0.5, 0)."""
+    pose = np.array([2.0, 3.0, math.pi / 2])
+    table = np.array([[3.0, 0.0, 0.0], [1.0, 2.0, 3.0], [0.0, 0.0, 0.0], [5.0, 1.0, 1.0]])
+    own = np.array([False, True, False, False])
+    centre = np.array([2.0, -1.0])  # 4 m in world -y: in the frame of a robot facing +y that is (-4, 0)
+    features, gate = coverage_features(
+        pose, np.array([3.0, 3.0]), table, own, np.float64(0.5), centre, 8.0, ROBOT, DT
+    )
+    np.testing.assert_allclose(features, [0.0, -1.0, 1.0, 0.75, 3.0 / 4, 0.5, -0.5, 0.0], atol=1e-12)
+    assert gate == 1.0
+
+
+def test_a_policy_file_round_trips_and_bad_files_are_named(tmp_path: Path):
+    weights = _random_weights(1)
+    path = tmp_path / "policy.npz"
+    weights.save(path)
+    loaded = CoverageGnnWeights.load(path.read_bytes())
+    features = np.random.default_rng(2).normal(size=(7, len(FEATURES)))
+    np.testing.assert_array_equal(loaded(features), weights(features))
+    with pytest.raises(PolicyFileError, match="lloyd_gnn"):
+        CoverageGnnWeights.load(ROOT / "models" / "formation" / "capt_gnn.npz")  # another task's
+    with pytest.raises(PolicyFileError, match="capt_gnn"):
+        FormationGnnWeights.load(path)
+    (tmp_path / "junk.npz").write_bytes(b"not a zip")
+    with pytest.raises(PolicyFileError, match="not a policy file"):
+        CoverageGnnWeights.load(tmp_path / "junk.npz")
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_command_vanishes_on_the_centroid_whatever_the_weights(seed):
+    rng = np.random.default_rng(seed)
+    poses = np.concatenate([rng.uniform(-500, 500, (20, 2)), rng.uniform(-4, 4, (20, 1))], -1)
+    tables = np.concatenate([rng.integers(0, 4, (20, 5, 1)), rng.normal(size=(20, 5, 2))], -1)
+    own = np.broadcast_to(np.eye(5, dtype=bool)[0], (20, 5))
+    features, gate = coverage_features(
+        poses, poses[:, :2], tables, own, rng.random(20), np.zeros(2), 4.0, ROBOT, DT
+    )
+    np.testing.assert_array_equal(local_command(_random_weights(seed), features, gate, ROBOT.v_max_mps), 0.0)
+
+
+def _section():
+    return tasks.parse_section({"kind": "coverage", "grid_per_axis": 24})
+
+
+def test_lloyd_gnn_robot_zero_ignores_robots_beyond_k_hops_for_k_ticks():
+    """With the shipped policy, on a line of 8: moving robot 7's start (placed beside robot 0) leaves
+    robot 0's first 7 commands unchanged, and changes the swarm's later."""
+    count = 8
+    rng = np.random.default_rng(3)
+    start = np.concatenate([rng.uniform(-1, 1, (1, count, 2)), rng.uniform(-np.pi, np.pi, (1, count, 1))], -1)
+    start[0, 7, :2] = start[0, 0, :2] + [0.3, 0.0]
+    moved = start.copy()
+    moved[0, 7, :2] += [0.1, 0.2]
+    commands = []
+    for poses in (start, moved):
+        args = ControllerArgs(robot=ROBOT, control_period_s=DT, robot_count=count, task=_section())
+        sim = KinematicSim(
+            ROBOT, batched_controller("lloyd_gnn", args), DT, poses, adjacency=graphs.line(count)[None]
+        )
+        ticks = []
+        for _ in range(12):
+            u_world = sim.act()
+            ticks.append(u_world[0].copy())
+            sim.move(u_world)
+        commands.append(np.array(ticks))
+    assert np.array_equal(commands[0][:7, 0], commands[1][:7, 0])
+    assert not np.array_equal(commands[0][:, 6], commands[1][:, 6])
+
+
+def test_the_shipped_policy_covers_a_cycle_of_twelve():
+    """Closed loop on the sweep's cells: 8 corner starts of 12 robots on a cycle reach and hold
+    H <= 1.05 H_ref within 30 s, H recomputed here from the axle positions on the quadrature."""
+    from swarm.scenarios.task_sweep import TaskSweepConfig, cell_starts, run_chunk
+
+    count = 12
+    section = coverage.sweep_section(count)
+    config = TaskSweepConfig(task="coverage", controllers=["lloyd_gnn"], seeds=8, seed=7, duration_s=30.0)
+    poses, adjacency = cell_starts(config, "cycle", count)
+    times, frames = run_chunk(config, section, "lloyd_gnn", poses, adjacency, 0.0, 0)
+    points, weights = section.quadrature()
+    h_ref = coverage.reference_cost(section, count)
+    for b in range(len(poses)):
+        final = frames[-1, b]
+        cost = float(((points[:, None, :] - final[None]) ** 2).sum(-1).min(axis=1) @ weights)
+        assert cost <= 1.05 * h_ref, (b, cost / h_ref)
+        assert coverage.outcome(times, frames[:, b], section, config.v_max_mps)["converged"]
+
+
+def test_onboard_lloyd_gnn_reads_a_policy_given_as_bytes(tmp_path: Path):
+    weights = _random_weights(3)
+    path = tmp_path / "policy.npz"
+    weights.save(path)
+    args = ControllerArgs(robot=ROBOT, robot_count=3, task=_section(), policy=path.read_bytes(), robot_id=1)
+    controller = onboard_controller("lloyd_gnn", args)
+    assert controller.policy.weights[0].shape == (len(FEATURES), 8)
+
+
+@pytest.mark.slow
+def test_training_smoke_writes_a_policy_the_controller_loads(tmp_path: Path):
+    config = train_coverage.make_config(
+        "smoke", {"out": str(tmp_path / "run"), "progress": False, "eval_cells": [["line", 6]]}
+    )
+    path = train_coverage.train(config)
+    weights = CoverageGnnWeights.load(path)
+    assert weights.meta["config"]["counts"] == [4, 6]
+    log = (tmp_path / "run" / "log.csv").read_text().splitlines()
+    assert len(log) == 1 + config.iterations
+
+
+@pytest.mark.runtime
+def test_the_pybullet_runtime_runs_the_learned_coverage_under_faults(tmp_path: Path):
+    """``scenarios/tasks/coverage-cycle-gnn-lossy.yaml``: 12 agent processes on a cycle, each running the
+    shipped ``lloyd_gnn`` (numpy only), 20% packet loss and a dropped link: the exit status is 0 exactly
+    when H / H_ref, computed here from the sim server's last poses, is within 1.05; each agent heard only
+    its graph neighbours."""
+    from swarm.cli import main
+
+    path = ROOT / "scenarios" / "tasks" / "coverage-cycle-gnn-lossy.yaml"
+    out = tmp_path / "pb"
+    code = main(["run", str(path), "--out", str(out), "--quiet"])
+    metrics = json.loads((out / "metrics.json").read_text())
+    final = np.array(
+        [pose[:2] for pose in json.loads((out / "trajectory.jsonl").read_text().splitlines()[-1])["poses"]]
+    )
+    points, weights = tasks.parse_section(yaml.safe_load(path.read_text())["task"]).quadrature()
+    ratio = (
+        float(((points[:, None, :] - final[None]) ** 2).sum(-1).min(axis=1) @ weights)
+        / metrics["reference_cost_m2"]
+    )
+    assert code == (0 if ratio <= 1.05 else 1), (ratio, metrics.get("health"))
+    assert ratio <= 1.05  # the shipped policy covers it (lloyd_flood does: tests/test_coverage.py)
+    assert metrics["engine"] == "pybullet" and metrics["faults"]["messages"]["lost_by_fault"] > 0
+    for i in range(12):
+        record = json.loads((out / "logs" / f"agent_{i}.json").read_text())
+        assert record["controller"] == "lloyd_gnn" and record["heavy_modules"] == []
+        assert record["neighbours"] == sorted({(i - 1) % 12, (i + 1) % 12})
