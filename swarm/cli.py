@@ -260,7 +260,7 @@ def _task_sweep(args: argparse.Namespace, data: dict) -> int:
     """``swarm sweep --task formation`` (or a config with ``task:``): swarm.scenarios.task_sweep."""
     from swarm.scenarios.task_sweep import TaskSweepConfig, run_task_sweep
 
-    rendezvous_only = {"--model": args.model, "--gain": args.gain, "--workers": args.workers}
+    rendezvous_only = {"--gain": args.gain, "--workers": args.workers}
     for option, value in rendezvous_only.items():
         if value is not None:
             raise UsageError(f"{option}: a rendezvous sweep setting; a task sweep has none")
@@ -276,6 +276,7 @@ def _task_sweep(args: argparse.Namespace, data: dict) -> int:
         "duration_s": args.max_duration,
         "v_max_mps": args.v_max,
         "packet_losses": None if args.packet_loss is None else [args.packet_loss],
+        "model": args.model,
     }
     config = config.with_overrides({key: value for key, value in overrides.items() if value is not None})
     _check_out_dir("--out", args.out)
@@ -295,15 +296,78 @@ def _task_sweep(args: argparse.Namespace, data: dict) -> int:
     return EXIT_SUCCESS if not failed else EXIT_NOT_MET
 
 
+def _policy_task(path: str) -> str:
+    """The task a policy file is for: formation or coverage by its ``format``, else rendezvous."""
+    import numpy as np
+
+    from swarm.sim.coverage_gnn import CoverageGnnWeights
+    from swarm.sim.formation_gnn import FormationGnnWeights
+
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            found = str(data["format"]) if "format" in data.files else None
+    except (OSError, ValueError) as error:
+        raise UsageError(f"{path}: not a policy file ({error})") from None
+    formats = {FormationGnnWeights.FORMAT: "formation", CoverageGnnWeights.FORMAT: "coverage"}
+    return formats.get(found or "", "rendezvous")
+
+
+def _task_evaluate(args: argparse.Namespace, task: str) -> int:
+    """``swarm evaluate MODEL`` of a task's learned kind: a task sweep of its experts, its baselines and
+    the learned kind with MODEL, on the same starts (swarm.scenarios.task_sweep)."""
+    from swarm.core.tasks import registry
+    from swarm.scenarios.task_sweep import TaskSweepConfig, run_task_sweep
+
+    rendezvous_only = {
+        "--limit": args.limit,
+        "--reuse": args.reuse,
+        "--curve-sizes": args.curve_sizes,
+        "--curve-starts": args.curve_starts,
+        "--workers": args.workers,
+    }
+    for option, value in rendezvous_only.items():
+        if value is not None:
+            raise UsageError(f"{option}: a rendezvous evaluation setting; a {task} evaluation has none")
+    entry = registry.get(task)
+    overrides = {
+        "topologies": args.topologies,
+        "sizes": args.sizes,
+        "seeds": args.seeds,
+        "duration_s": args.max_duration,
+        "packet_losses": args.packet_loss,
+        "controllers": [*entry.experts, *entry.baselines, *entry.learned],
+        "model": args.model,
+    }
+    config = TaskSweepConfig(task=task).with_overrides(
+        {key: value for key, value in overrides.items() if value is not None}
+    )
+    _check_out_dir("--out", args.out)
+    out_dir = Path(args.out)
+    rows = run_task_sweep(config, out_dir, progress=not args.quiet)
+    failed = [row for row in rows if row["controller"] in entry.learned and row["success_rate"] < 1.0]
+    table, plot = out_dir / "sweep.md", out_dir / "sweep.png"
+    print(f"evaluate {task}: {len(rows)} cells, table in {table}, plot {plot}")
+    for row in failed:
+        loss = f" loss {row['packet_loss']:g}" if row["packet_loss"] else ""
+        print(f"  model not always met: {row['topology']} N={row['robots']}{loss}: {row['success_rate']:.1%}")
+    return EXIT_SUCCESS if not failed else EXIT_NOT_MET
+
+
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from swarm.scenarios.evaluate import EvaluateConfig, evaluate
     from swarm.scenarios.sweep import SweepConfig
 
+    if not Path(args.model).is_file():
+        raise UsageError(f"{args.model}: no such policy file")
+    task = _policy_task(args.model)
+    if args.task is not None and args.task != task:
+        raise UsageError(f"--task {args.task}: {args.model} is a {task} policy")
+    if task != "rendezvous":
+        return _task_evaluate(args, task)
+
     limits: dict[str | int, int] = {}
     for topology, count, starts in args.limit or []:  # swarm.runtime.usage.limit_spec
         limits[f"{topology}:{count}" if topology else count] = starts
-    if not Path(args.model).is_file():
-        raise UsageError(f"{args.model}: no such policy file")
     for reuse_dir in args.reuse or []:
         if not Path(reuse_dir).is_dir():
             raise UsageError(f"--reuse {reuse_dir}: no such results directory")
@@ -320,7 +384,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         reuse=args.reuse or [],
         curve_sizes=args.curve_sizes or defaults.curve_sizes,
         curve_starts=args.curve_starts or defaults.curve_starts,
-        workers=args.workers,
+        workers=args.workers or 1,
         packet_losses=args.packet_loss or defaults.packet_losses,
     )
     SweepConfig(
@@ -492,7 +556,11 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument(
         "--packet-loss", type=probability, help="probability that a message is lost (default 0)"
     )
-    sweep.add_argument("--model", help="policy file of controller gnn (default: models/gnn_default.npz)")
+    sweep.add_argument(
+        "--model",
+        help="policy file of controller gnn (default: models/gnn_default.npz), or with --task of the"
+        " task's learned kind (capt_gnn, lloyd_gnn; default: the shipped one under models/)",
+    )
     sweep.add_argument(
         "--max-duration", type=positive_float, help="simulated seconds before a start counts as failed"
     )
@@ -519,7 +587,17 @@ def build_parser() -> argparse.ArgumentParser:
         "cell cache); write evaluation.csv, evaluation.md and plots (max_pairwise over time, ratio to the "
         "lower bound). Exit 1 when the model did not converge from every start.",
     )
-    evaluate.add_argument("model", help="policy file (.npz)")
+    evaluate.add_argument(
+        "model",
+        help="policy file (.npz): a rendezvous GNN, or a task's learned kind (capt_gnn: formation,"
+        " lloyd_gnn: coverage; that task's experts and baselines on the task sweep's cells)",
+    )
+    evaluate.add_argument(
+        "--task",
+        choices=["rendezvous", "formation", "coverage"],
+        help="the task the model is for (default: read from the file); a task's default cells are"
+        " swarm sweep --task's: 20 starts, complete, cycle, line, random and disk graphs, N 6 12 24",
+    )
     evaluate.add_argument("--topologies", nargs="+", help=" ".join(grid_kinds))
     evaluate.add_argument("--sizes", nargs="+", type=robot_count, help="robot counts N (default 6 12 24)")
     evaluate.add_argument("--seeds", type=positive_int, help="random starts per cell (default 1000)")
@@ -552,7 +630,6 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_argument(
         "--workers",
         type=positive_int,
-        default=1,
         help="processes each cell's starts are split over (default 1)",
     )
     evaluate.set_defaults(handler=cmd_evaluate)

@@ -8,9 +8,11 @@ cells whose success is known.
 
 from __future__ import annotations
 
+import csv
 import itertools
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -160,7 +162,12 @@ def test_the_sweep_command_runs_a_task_and_exits_1_where_a_cell_fails(tmp_path, 
     [
         (["--task", "nope"], "task: 'nope' is not swept; choose from formation, coverage"),
         (["--task", "formation", "--controllers", "mec_flood"], "'mec_flood' does not do task formation"),
-        (["--task", "formation", "--model", "m.npz"], "--model: a rendezvous sweep setting"),
+        (["--task", "formation", "--gain", "2"], "--gain: a rendezvous sweep setting"),
+        (["--task", "formation", "--model", "m.npz"], "model: m.npz: no such policy file"),
+        (
+            ["--task", "formation", "--controllers", "capt", "--model", "models/formation/capt_gnn.npz"],
+            "model: none of the controllers takes one (the task's learned kinds: capt_gnn)",
+        ),
         (["--task", "coverage", "--topologies", "wheel"], "topologies: unknown topology 'wheel'"),
     ],
 )
@@ -228,3 +235,50 @@ def test_starts_that_cannot_be_drawn_are_refused_before_any_cell_runs(tmp_path, 
     assert main(["sweep", "--config", str(config), "--out", str(out), "--quiet"]) == 2
     assert "disk_radius_m: 0.5 m connects too few starts of" in capsys.readouterr().err
     assert not list((out / "cells").glob("*.json"))
+
+
+def _silent_formation_policy(path: Path) -> Path:
+    """A capt_gnn policy whose direction output is 0: its robots never move."""
+    from swarm.sim.formation_gnn import FEATURES, FormationGnnWeights
+
+    FormationGnnWeights((np.zeros((len(FEATURES), 3)),), (np.zeros(3),)).save(path)
+    return path
+
+
+def test_evaluate_runs_a_task_policy_beside_the_experts_and_baselines(tmp_path, capsys):
+    """``swarm evaluate`` of a formation policy: the task sweep's cells with the file given; the shipped
+    policy fills every slot (exit 0), one that never moves fills none (exit 1, the cell named)."""
+    from swarm.cli import main
+
+    cells = ["--sizes", "4", "--seeds", "2", "--topologies", "line", "--quiet"]
+    shipped = "models/formation/capt_gnn.npz"
+    assert main(["evaluate", shipped, *cells, "--out", str(tmp_path / "a")]) == 0
+    assert "evaluate formation: 3 cells" in capsys.readouterr().out
+    rows = {row["controller"]: row for row in csv.DictReader((tmp_path / "a" / "sweep.csv").open())}
+    assert sorted(rows) == ["capt", "capt_flood", "capt_gnn"]
+    assert json.loads((tmp_path / "a" / "sweep_config.json").read_text())["model"] == shipped
+    silent = str(_silent_formation_policy(tmp_path / "silent.npz"))
+    assert main(["evaluate", silent, *cells, "--out", str(tmp_path / "b")]) == 1
+    assert "model not always met: line N=4: 0.0%" in capsys.readouterr().out
+    rows = {row["controller"]: row for row in csv.DictReader((tmp_path / "b" / "sweep.csv").open())}
+    assert float(rows["capt_gnn"]["success_rate"]) == 0.0 and float(rows["capt_flood"]["success_rate"]) == 1.0
+    # swarm sweep --task --model runs the same file
+    argv = ["sweep", "--task", "formation", "--controllers", "capt_gnn", "--model", silent, *cells]
+    assert main([*argv, "--out", str(tmp_path / "c")]) == 1
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--task", "coverage"], "--task coverage: models/formation/capt_gnn.npz is a formation policy"),
+        (["--limit", "4:1"], "--limit: a rendezvous evaluation setting; a formation evaluation has none"),
+        (["--topologies", "wheel"], "topologies: unknown topology 'wheel'"),
+    ],
+)
+def test_bad_task_evaluations_exit_2_and_write_nothing(extra, message, tmp_path, capsys):
+    from swarm.cli import main
+
+    out = tmp_path / "out"
+    assert main(["evaluate", "models/formation/capt_gnn.npz", *extra, "--out", str(out)]) == 2
+    assert message in capsys.readouterr().err
+    assert not out.exists()

@@ -68,6 +68,7 @@ class TaskSweepConfig:
     disk_radius_m: float = 2.0
     seed: int = 0
     chunk_starts: int = 50
+    model: str | None = None  # the policy file of the task's learned kind (None: the shipped one)
 
     @classmethod
     def from_mapping(cls, data: dict, source: str = "<config>") -> TaskSweepConfig:
@@ -127,6 +128,14 @@ class TaskSweepConfig:
                 raise ScenarioError(f"{source}: {name}: must be positive")
         if self.duration_s is not None and not self.duration_s > 0:
             raise ScenarioError(f"{source}: duration_s: must be positive")
+        if self.model is not None:
+            if not Path(self.model).is_file():
+                raise ScenarioError(f"{source}: model: {self.model}: no such policy file")
+            if not any("model" in CONTROLLER_KINDS[name].options for name in self.chosen_controllers):
+                raise ScenarioError(
+                    f"{source}: model: none of the controllers takes one"
+                    f" (the task's learned kinds: {', '.join(task.learned) or 'none'})"
+                )
 
 
 # ---------------------------------------------------------------------------------------------- starts
@@ -167,12 +176,14 @@ def run_chunk(
     cells, count = config.cells, poses.shape[1]
     robot = RobotParams(v_max_mps=config.v_max_mps)
     proximity = adjacency is None
+    takes_model = isinstance(controller, str) and "model" in CONTROLLER_KINDS[controller].options
     args = ControllerArgs(
         robot=robot,
         control_period_s=config.control_period_s,
         robot_count=count,
         task=section,
         cell_radius_m=config.disk_radius_m / 2 if proximity else None,
+        policy=config.model if takes_model else None,
     )
     faults = None
     if loss > 0:
@@ -287,8 +298,9 @@ def reusable_cells(config: TaskSweepConfig, out_dir: Path) -> bool:
     path = out_dir / "sweep_config.json"
     if not path.is_file():
         return False
-    stored = json.loads(path.read_text())
     current = json.loads(json.dumps(asdict(config)))
+    defaults = json.loads(json.dumps(asdict(TaskSweepConfig(task=config.task))))
+    stored = {**defaults, **json.loads(path.read_text())}  # a setting added since: its default
     return {k: v for k, v in stored.items() if k != "controllers"} == {
         k: v for k, v in current.items() if k != "controllers"
     }
@@ -384,6 +396,7 @@ def write_tables(out_dir: Path, config: TaskSweepConfig, rows: list[dict], note:
         f" kinematic engine; disk graphs of radius {config.disk_radius_m:g} m.",
         f"Metric: {task.metric}. Success: {task.success}. Compared with: the {bound}.",
         "Each column: median / p95 over the starts that have it (how many, where not all).",
+        *([f"The learned kinds' policy: {config.model}."] if config.model else []),
         *([note] if note else []),
         "",
         header,
