@@ -64,7 +64,15 @@ def _find_default_scenario() -> Path:
 
 def _load_with_overrides(path: Path, args: argparse.Namespace):
     """Load a scenario, applying command-line overrides before validation so that errors name keys."""
-    from swarm.scenarios.scenario import ScenarioError, load_scenario, parse_scenario, resolve_model_path
+    import yaml
+
+    from swarm.scenarios.scenario import (
+        ENGINE_DEFAULTS,
+        ScenarioError,
+        load_scenario,
+        parse_scenario,
+        resolve_model_path,
+    )
 
     scenario = load_scenario(path)
     if not (args.engine or args.controller or args.model or args.duration):
@@ -72,6 +80,10 @@ def _load_with_overrides(path: Path, args: argparse.Namespace):
     data = scenario.model_dump(mode="json")
     if args.engine:
         data["sim"]["engine"] = args.engine
+        written = yaml.safe_load(path.read_text()) or {}
+        for section, key in ENGINE_DEFAULTS:  # chosen again for the new engine unless the file gives them
+            if isinstance(data.get(section), dict) and key not in (written.get(section) or {}):
+                data[section].pop(key, None)
     if args.duration:
         data["sim"]["duration_s"] = args.duration
     if args.controller:  # the new kind's defaults for the options only the old kind took

@@ -164,6 +164,36 @@ def test_bad_safety_keys_are_named(safety, key):
         parse_scenario({**SCENARIO, "safety": safety})
 
 
+@pytest.mark.parametrize(
+    ("engine", "given", "margin", "spacing"),
+    [
+        ("kinematic", {}, 0.03, None),  # pack_flood keeps its default spacing (2 (r + l) + 0.05)
+        ("pybullet", {}, 0.05, 2 * (0.12 + 0.05) + 0.05 + 0.02),  # slots 2 cm wider than the barrier
+        ("pybullet", {"margin_m": 0.03}, 0.03, None),  # a margin the scenario gives is kept
+        ("kinematic", {"margin_m": 0.08}, 0.08, 2 * (0.12 + 0.05) + 0.08 + 0.02),
+    ],
+)
+def test_the_default_margin_is_the_engines_and_pack_flood_slots_clear_it(engine, given, margin, spacing):
+    """PyBullet's robots lag their commands: its default barrier margin is wider (docs/safety.md), and
+    ``pack_flood``'s slots stay 2 cm wider than the barrier's distance."""
+    robot = RobotParams()
+    assert (robot.body_radius_m, robot.offset_m) == (0.12, 0.05)  # the numbers above
+    data = {
+        **SCENARIO,
+        "controller": {"kind": "pack_flood"},
+        "sim": {**SCENARIO.get("sim", {}), "engine": engine},
+        "safety": {"kind": "barrier", **given},
+    }
+    scenario = parse_scenario(data)
+    assert scenario.safety is not None and scenario.safety.margin_m == pytest.approx(margin)
+    if spacing is None:
+        assert scenario.controller.spacing_m is None
+    else:
+        assert scenario.controller.spacing_m == pytest.approx(spacing)
+    plain = parse_scenario({**SCENARIO, "sim": {**SCENARIO.get("sim", {}), "engine": engine}})
+    assert plain.safety is None and plain.controller.spacing_m is None
+
+
 def test_bad_obstacle_is_named():
     with pytest.raises(ScenarioError, match="obstacles"):
         parse_scenario({**SCENARIO, "obstacles": [{"kind": "disc", "centre": [0, 0]}]})
@@ -237,3 +267,26 @@ def test_a_run_with_bodies_to_keep_apart_plots_their_clearance(tmp_path):
     metrics = json.loads((tmp_path / "safe" / "metrics.json").read_text())
     least = min(min(lines["robot_robot"]["y"]), min(lines["robot_obstacle"]["y"]))
     assert least == pytest.approx(metrics["min_clearance_m"], abs=1e-6)
+
+
+def test_a_run_on_another_engine_gets_that_engines_margin(tmp_path):
+    """``swarm run FILE --engine pybullet`` of a kinematic file: the margin and pack_flood's spacing are
+    chosen for PyBullet, unless the file gives them."""
+    import argparse
+
+    import yaml
+
+    from swarm.cli import _load_with_overrides
+
+    flags = argparse.Namespace(engine="pybullet", controller=None, model=None, duration=None)
+    path = tmp_path / "s.yaml"
+    data = {**SCENARIO, "controller": {"kind": "pack_flood"}, "safety": {"kind": "barrier"}}
+    path.write_text(yaml.safe_dump(data))
+    scenario = _load_with_overrides(path, flags)
+    assert scenario.sim.engine == "pybullet" and scenario.safety is not None
+    assert scenario.safety.margin_m == pytest.approx(0.05)
+    assert scenario.controller.spacing_m == pytest.approx(2 * (0.12 + 0.05) + 0.05 + 0.02)
+    path.write_text(yaml.safe_dump({**data, "safety": {"kind": "barrier", "margin_m": 0.03}}))
+    scenario = _load_with_overrides(path, flags)
+    assert scenario.safety is not None and scenario.safety.margin_m == pytest.approx(0.03)
+    assert scenario.controller.spacing_m is None

@@ -29,7 +29,14 @@ from swarm.core import graphs, metrics, tasks, topologies
 from swarm.core.faults import FAULT_KINDS
 from swarm.core.obstacles import ObstacleSpec
 from swarm.core.robot import RobotParams
-from swarm.core.safety import SafetyParams, gain_is_exact, min_sensing_radius_m
+from swarm.core.safety import (
+    ENGINE_MARGIN_M,
+    SafetyParams,
+    body_distance_m,
+    gain_is_exact,
+    min_sensing_radius_m,
+    with_engine_margin,
+)
 from swarm.sim.controller_kinds import CONTROLLER_KINDS
 
 DEFAULT_MODEL_NAME = "gnn_default.npz"  # in <project root>/models, for controller gnn without a model
@@ -414,9 +421,21 @@ class Scenario(_Strict):
 
     @model_validator(mode="after")
     def _safety_consistent(self) -> Scenario:
-        """The sensing radius sees a body before it can reach the barrier; ``gamma dt <= 1``."""
+        """The engine's default margin (``swarm.core.safety.ENGINE_MARGIN_M``) where none is given, and
+        ``pack_flood``'s slots 2 cm wider than the barrier's distance where that margin is wider than
+        its default spacing allows; the sensing radius sees a body before it can reach the barrier;
+        ``gamma dt <= 1``."""
         if self.safety is None:
             return self
+        self.safety = with_engine_margin(self.safety, self.sim.engine)
+        if self.controller.kind == "pack_flood" and self.controller.spacing_m is None:
+            from swarm.sim.pack_flood import SPACING_MARGIN_M, default_spacing_m
+
+            if self.safety.margin_m > ENGINE_MARGIN_M["kinematic"]:  # else the default: unchanged bits
+                wider = (
+                    body_distance_m(self.robot, self.safety) + SPACING_MARGIN_M - ENGINE_MARGIN_M["kinematic"]
+                )
+                self.controller.spacing_m = max(wider, default_spacing_m(self.robot))
         least = min_sensing_radius_m(self.robot, self.safety, self.sim.control_period_s)
         if self.safety.sensing_radius_m < least:
             raise KeyedError(
@@ -705,6 +724,11 @@ def threshold_warnings(scenario: Scenario) -> list[str]:
                 " the run cannot converge there"
             )
     return warnings
+
+
+ENGINE_DEFAULTS = (("safety", "margin_m"), ("controller", "spacing_m"))
+"""Keys whose default depends on ``sim.engine`` (``Scenario._safety_consistent``): a scenario run on
+another engine than its file's (``swarm run --engine``) gets that engine's unless the file gives them."""
 
 
 def load_scenario(path: str | Path) -> Scenario:
