@@ -75,7 +75,7 @@ from typing import Any
 import numpy as np
 import zenoh
 
-from swarm.core import safety, tasks
+from swarm.core import safety, tasks, topologies
 from swarm.core.exit_codes import ExitCode
 from swarm.core.faults import DROPPED, HEARD, LOST, LinkFaults, message_max_age_ticks, select_message
 from swarm.core.robot import RobotParams
@@ -112,6 +112,9 @@ LIVELINESS_RING = 16
 
 SENSE_RING = 64
 """Sensing samples buffered (one a tick from the sim; drained every tick)."""
+
+INBOX_RING = 64
+"""Radio inboxes buffered (a disk graph: one a tick from the sim; drained every tick)."""
 
 HUNG_AFTER_DEADLINES = 3
 """lockstep: a live neighbour (its token up) whose message missed this many neighbour deadlines in a
@@ -265,6 +268,34 @@ class SenseReader:
         return filter_step(self.readings.get(tick), u_world, theta_rad, self.robot, self.params, self.counts)
 
 
+class InboxReader:
+    """On a disk graph, what the sim's radio relays to this robot (``swarm/<run>/robot/<i>/inbox``,
+    ``sim_server.radio``): the messages of the robots in range that it hears, one inbox a tick, sent
+    just before the pose; lockstep waits for it up to the neighbour deadline. A tick without its inbox
+    hears nobody (``inboxes_missing``)."""
+
+    def __init__(self, inlet: Inlet, key: str, dim: int, robot_count: int):
+        self.inlet, self.key, self.dim, self.robot_count = inlet, key, dim, robot_count
+        self.inboxes: dict[int, wire.Inbox] = {}
+        self.counts = {"received": 0, "invalid": 0, "unauthenticated": 0, "missing": 0}
+
+    def drain(self, tick: int, run_key: wire.RunKey | None) -> bool:
+        """Take what is queued; whether the inbox of ``tick`` is in."""
+        counts, inboxes = self.counts, self.inboxes
+        while (taken := self.inlet.take()) is not None:
+            payload, tag = taken
+            if run_key is not None and not run_key.check(self.key, payload, tag):
+                counts["unauthenticated"] += 1
+                continue
+            inbox = wire.decode_inbox(payload, self.dim, self.robot_count)
+            counts["invalid" if inbox is None else "received"] += 1
+            if inbox is not None and inbox.tick >= tick:  # an older one can no longer be used
+                inboxes[inbox.tick] = inbox
+        for old in [k for k in inboxes if k < tick]:
+            del inboxes[old]
+        return tick in inboxes
+
+
 @dataclass
 class AgentOptions:
     robot: int
@@ -343,6 +374,7 @@ class RobotAgent:
         self._newest_message_tick: dict[int, int] = {}  # neighbour -> tick of its newest message accepted
         self._alive_subs: dict[int, zenoh.Subscriber] = {}
         self._neighbours_alive: set[int] = set()
+        self._radio: InboxReader | None = None  # a disk graph: the sim's radio relays what it hears
         self._neighbours_gone: set[int] = set()  # neighbours whose token went away at least once
         self._neighbours_hung: set[int] = set()  # live but silent (HUNG_AFTER_DEADLINES): not waited for
         self._missed_in_row: dict[int, int] = {}  # neighbour -> neighbour deadlines missed in a row
@@ -565,6 +597,33 @@ class RobotAgent:
             if self._sense.drain(tick, self._run_key):
                 return
 
+    def _wait_for_inbox(self, tick: int, until_s: float) -> None:
+        """lockstep, a disk graph: poll until this tick's inbox from the radio is in, or the deadline."""
+        assert self._radio is not None
+        while not self._ended() and time.perf_counter() < until_s:
+            time.sleep(POLL_S)
+            if self._radio.drain(tick, self._run_key):
+                return
+
+    def _heard_by_radio(self, radio: InboxReader, tick: int) -> tuple[list[int], list, list[float]]:
+        """The senders, messages and weights of this tick's inbox, its counts added to the agent's."""
+        inbox = radio.inboxes.get(tick)
+        if inbox is None:
+            radio.counts["missing"] += 1
+            return [], [], []
+        counters = self.counters
+        counters.messages_received += len(inbox.senders)
+        counters.messages_dropped_by_fault += inbox.counts["dropped_by_fault"]
+        counters.messages_lost_by_fault += inbox.counts["lost_by_fault"]
+        counters.messages_delayed_by_fault += inbox.counts["delayed_by_fault"]
+        counters.messages_lost += inbox.counts["lost"]
+        rows = (
+            [tuple(row) for row in inbox.values]
+            if self._dim <= wire.SHORT_MESSAGE_DIM
+            else list(inbox.values)
+        )
+        return list(inbox.senders), rows, list(inbox.weights)
+
     def _wait_for_messages(self, tick: int, until_s: float) -> None:
         """lockstep: poll until every live neighbour's needed message is in, or the deadline."""
         while True:
@@ -773,6 +832,13 @@ class RobotAgent:
             )
             entities.append(sense_inlet)
             record["subscriptions"].append(keys.sense(self.robot))
+        topology = config.scenario.get("topology", {}).get("kind")
+        if topology is not None and topologies.get(topology).proximity:  # a disk graph: the radio
+            radio_inlet = Inlet(session, keys.inbox(self.robot), INBOX_RING)
+            self._radio = InboxReader(radio_inlet, keys.inbox(self.robot), self._dim, config.robot_count)
+            entities.append(radio_inlet)
+            record["subscriptions"].append(keys.inbox(self.robot))
+            record["radio"] = self._radio.counts
         for j in config.neighbours:
             self._inbox[j] = {}
             self._msg_inlets[j] = inlet = Inlet(session, keys.msg(j), MESSAGE_RING)
@@ -838,8 +904,17 @@ class RobotAgent:
                 self._wait_for_messages(tick, wait_start_s + config.neighbour_deadline_s)
                 counters.neighbour_wait_s.append(time.perf_counter() - wait_start_s)
                 counters.ticks_waited += 1
+            radio = self._radio
+            if radio is not None and not radio.drain(tick, run_key) and lockstep:
+                wait_start_s = time.perf_counter()
+                self._wait_for_inbox(tick, wait_start_s + config.neighbour_deadline_s)
+                counters.neighbour_wait_s.append(time.perf_counter() - wait_start_s)
+                counters.ticks_waited += 1
             compute_start_s = time.perf_counter()
-            heard, messages = [], []
+            heard: list[int] = []
+            messages: list[Any] = []
+            if radio is not None:
+                heard, messages, weights = self._heard_by_radio(radio, tick)
             came: Callable[[int], bool]
             for j, box in boxes:
                 if no_faults:
@@ -866,7 +941,8 @@ class RobotAgent:
                 if box and min(box) < oldest:
                     for k in [k for k in box if k < oldest]:
                         del box[k]
-            weights = [weight_of[j] for j in heard]
+            if radio is None:
+                weights = [weight_of[j] for j in heard]
             if act_floats is not None:  # plain floats, no numpy: most of an agent's Python time otherwise
                 u_world, message = act_floats(pose.x_m, pose.y_m, pose.theta_rad, messages, weights)
             else:

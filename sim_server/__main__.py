@@ -197,7 +197,10 @@ def acl_settings(scenario, args: argparse.Namespace) -> dict:
 
         settings = ros2.Ros2Settings.from_scenario(scenario.model_dump(mode="json"))
         ros2_keys = [ros2.acl_key_exprs(settings, i) for i in range(scenario.robots.count)]
-    return acl.router_settings(wire.Keys(args.run), scenario.adjacency(), users.resolve(), ros2_keys)
+    adjacency = scenario.adjacency()  # None: a disk graph, no agent hears another but by the radio
+    count = scenario.robots.count
+    graph = [[0.0] * count for _ in range(count)] if adjacency is None else adjacency
+    return acl.router_settings(wire.Keys(args.run), graph, users.resolve(), ros2_keys)
 
 
 if __name__ == "__main__":

@@ -55,8 +55,9 @@ import numpy as np
 import zenoh
 
 from sim_server.physics import PhysicsWorld
+from sim_server.radio import Radio
 from swarm.core.exit_codes import ExitCode
-from swarm.core.faults import tick_of
+from swarm.core.faults import LinkFaults, message_max_age_ticks, tick_of
 from swarm.core.obstacles import Capsules
 from swarm.core.robot import controlled_point, saturate_wheels
 from swarm.runtime import wire
@@ -172,6 +173,10 @@ class SimServer:
         self._sense_rng = None if safety is None else np.random.default_rng(safety.seed)
         self._contacts = {"robot_robot": 0, "robot_obstacle": 0, "ticks": 0}
         self._sense_publishers: list = []
+        self._radio, self._msg_dim = self._make_radio(scenario, options)
+        self._inbox_keys = [self.keys.inbox(i) for i in range(self.count)]
+        self._inbox_publishers: list = []
+        self._msg_fresh: set[int] = set()  # lockstep, disk graph: robots whose message of this tick is in
         self._hung: set[int] = set()  # lockstep: live agents not waited for (HUNG_AFTER_DEADLINES)
         self._missed_in_row = np.zeros(self.count, dtype=int)
         self._robot_of_cmd = {self.keys.cmd(i): i for i in range(self.count)}
@@ -217,6 +222,44 @@ class SimServer:
             "silent_spans": [],
             "contacts": self._contacts,  # (pair, tick) touches in PyBullet, any substep (docs/safety.md)
         }
+        if self._radio is not None:  # a disk graph: the server relays the messages (sim_server.radio)
+            self.stats["radio"] = {
+                "radius_m": self._radio.radius_m,
+                "messages_in": 0,
+                "invalid_messages": 0,
+                "unauthenticated_messages": 0,
+                "future_messages": 0,
+                "relayed": 0,
+                **dict.fromkeys(wire.INBOX_COUNTS, 0),
+            }
+
+    @staticmethod
+    def _make_radio(scenario: Scenario, options: ServerOptions) -> tuple[Radio | None, int]:
+        """The radio of a disk graph run by robot agents (a central kind hears every pose: none), and
+        the length of the agents' messages (that of robot 0's onboard controller)."""
+        from swarm.core import tasks
+        from swarm.sim.controller_kinds import controller_kind, robot_controller
+
+        if not scenario.topology.proximity or controller_kind(scenario.controller.kind).central:
+            return None, 0
+        data = scenario.model_dump(mode="json")
+        controller = robot_controller(
+            scenario.controller.kind,
+            scenario.robot,
+            scenario.controller.gain,
+            options.policy,
+            scenario.robots.count,
+            scenario.sim.control_period_s,
+            data["controller"],
+            tasks.parse_section(data.get("task")),
+            0,
+        )
+        faults = LinkFaults.from_scenario_dict(data)
+        max_age = message_max_age_ticks({"mode": scenario.sim.mode, **data["sim"]})
+        assert scenario.topology.radius_m is not None  # a proximity topology has one
+        return Radio(
+            scenario.robots.count, scenario.topology.radius_m, faults, max_age
+        ), controller.message_dim
 
     # ------------------------------------------------------------------ callbacks (zenoh threads)
     def _on_cmd(self, sample: zenoh.Sample) -> None:
@@ -230,6 +273,34 @@ class SimServer:
                 self.stats["unauthenticated_commands"] += 1
             return
         self._accept_command(robot, wire.decode_command(payload), now_s)
+
+    def _on_msg(self, sample: zenoh.Sample) -> None:
+        """An agent's message (a disk graph: the radio relays it, ``sim_server.radio``)."""
+        key_expr = str(sample.key_expr)
+        robot = self.keys.robot_of(key_expr, "msg")
+        payload = sample.payload.to_bytes()
+        run_key = self.options.run_key
+        radio, counts = self._radio, self.stats["radio"]
+        assert radio is not None
+        if run_key is not None and not run_key.check(key_expr, payload, wire.attachment_of(sample)):
+            with self._cond:
+                counts["unauthenticated_messages"] += 1
+            return
+        decoded = wire.decode_message_values(payload, self._msg_dim)
+        with self._cond:
+            if decoded is None or robot is None or robot >= self.count:
+                counts["invalid_messages"] += 1
+                return
+            tick, values = decoded
+            if tick > self._tick:
+                counts["future_messages"] += 1
+                return
+            counts["messages_in"] += 1
+            radio.offer(robot, tick, np.asarray(values, dtype=np.float64))
+            if tick == self._tick:
+                self._msg_fresh.add(robot)
+                if self._all_fresh():
+                    self._cond.notify_all()
 
     def _accept_command(self, robot: int | None, cmd: wire.Command | None, now_s: float) -> None:
         """A decoded command of ``robot`` (None: invalid) from the project's keys or ROS 2's cmd_vel."""
@@ -261,7 +332,16 @@ class SimServer:
     def _all_fresh(self) -> bool:
         """Every expected agent's command of the current tick is in (lock held). An agent that
         (re)joined after this tick's poses went out is waited for from the next tick on."""
+        if self._radio is not None and not self._expected.issubset(self._msg_fresh):
+            return False  # a disk graph: the radio needs every expected message of this tick too
         return len(self._fresh) >= len(self._expected) and self._expected.issubset(self._fresh)
+
+    def _all_in(self) -> bool:
+        """lockstep: every expected agent's command of this tick is in, and on a disk graph its
+        message too (lock held)."""
+        if self._radio is not None and not self._expected.issubset(self._msg_fresh):
+            return False
+        return self._expected.issubset(self._cmds)
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         robot = self.keys.robot_of(str(sample.key_expr), "alive")
@@ -373,6 +453,12 @@ class SimServer:
                     self._sense_publishers = [
                         session.declare_publisher(key, **stream) for key in self._sense_keys
                     ]
+                msg_sub = None
+                if self._radio is not None:  # a disk graph: the radio hears every agent, tells each its own
+                    msg_sub = session.declare_subscriber(self.keys.all_msgs, guard(self._on_msg))
+                    self._inbox_publishers = [
+                        session.declare_publisher(key, **stream) for key in self._inbox_keys
+                    ]
                 if options.ros2:
                     from sim_server.ros2_face import Ros2Face
 
@@ -397,7 +483,16 @@ class SimServer:
                     self._log(f"all {self.count} agents alive after {self.stats['startup_s']:.2f} s")
                     loop = self._lockstep if sim.mode == "lockstep" else self._realtime
                     outcome = loop(world, publishers)
-                for entity in (alive_sub, cmd_sub, queryable, token, *publishers, *self._sense_publishers):
+                radio_entities = [] if msg_sub is None else [msg_sub, *self._inbox_publishers]
+                for entity in (
+                    alive_sub,
+                    cmd_sub,
+                    queryable,
+                    token,
+                    *publishers,
+                    *self._sense_publishers,
+                    *radio_entities,
+                ):
                     entity.undeclare()
                 if self.ros2_face is not None:
                     self.ros2_face.undeclare()
@@ -416,10 +511,13 @@ class SimServer:
             self._tick = tick
             self._expected = self._alive - self._hung
             self._fresh.clear()
+            self._msg_fresh.clear()
             if self.scenario.sim.mode == "lockstep":
                 self._cmds.clear()
             self._published_at_s[tick] = time.perf_counter()
         run_key = self.options.run_key
+        if self._radio is not None:  # before the poses, as the sensing: in when the pose comes
+            self._publish_inboxes(tick, poses, run_key)
         if self._sense_publishers:  # before the poses: an agent has its reading when its pose comes
             self._publish_sensing(tick, poses, run_key)
         payloads = self._encoder.encode(tick, time_s, poses.tolist())
@@ -432,6 +530,27 @@ class SimServer:
         if self.ros2_face is not None:
             self.ros2_face.publish(time_s, poses)
         self._add_time("publish", start_s, start_cpu_s)
+
+    def _publish_inboxes(self, tick: int, poses: np.ndarray, run_key: wire.RunKey | None) -> None:
+        """Robot i's inbox of this tick on its own key (``sim_server.radio``); then this tick's disk
+        graph, from the poses going out now."""
+        radio, counts = self._radio, self.stats["radio"]
+        assert radio is not None
+        with self._cond:  # the zenoh threads add messages under the lock
+            inboxes = [radio.inbox(i, tick) for i in range(self.count)]
+            radio.positions(tick, poses[:, :2])
+        for publisher, key, (senders, messages, lost) in zip(
+            self._inbox_publishers, self._inbox_keys, inboxes, strict=True
+        ):
+            values = np.array(messages, dtype=np.float64).reshape(len(senders), self._msg_dim)
+            payload = wire.encode_inbox(tick, senders, [1.0] * len(senders), values, lost)
+            counts["relayed"] += len(senders)
+            for name, number in zip(wire.INBOX_COUNTS, lost, strict=True):
+                counts[name] += number
+            if run_key is None:
+                publisher.put(payload)
+            else:
+                publisher.put(payload, attachment=run_key.tag(key, payload))
 
     def _publish_sensing(self, tick: int, poses: np.ndarray, run_key: wire.RunKey | None) -> None:
         """Robot i's range-sensor reading of this tick on its own key (``swarm.sim.sensing`` from the
@@ -514,7 +633,7 @@ class SimServer:
                 self._publish(publishers, tick, poses)
                 deadline_s = self._published_at_s[tick] + sim.deadline_s
                 with self._cond:
-                    all_in = self._wait(lambda: self._expected.issubset(self._cmds), deadline_s)
+                    all_in = self._wait(self._all_in, deadline_s)
                     cmds, alive = dict(self._cmds), set(self._alive)
                 if self._stop:
                     return EXIT_INTERRUPTED

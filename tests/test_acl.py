@@ -65,7 +65,7 @@ def test_each_robot_is_allowed_its_own_keys_and_its_neighbours_only():
     assert all(rule["permission"] == "allow" and len(rule["flows"]) == 1 for rule in rules.values())
     policy = next(policy for policy in block["policies"] if policy["subjects"] == ["robot-1"])
     mine = [rules[name] for name in policy["rules"]]
-    heard = {keys.pose(1), keys.sense(1), keys.msg(0), keys.msg(2)}
+    heard = {keys.pose(1), keys.sense(1), keys.inbox(1), keys.msg(0), keys.msg(2)}
     assert _keys_of(mine, "ingress", "declare_subscriber") == heard
     assert _keys_of(mine, "egress", "put") == heard
     assert _keys_of(mine, "ingress", "put") == {keys.cmd(1), keys.msg(1)}
@@ -75,9 +75,29 @@ def test_each_robot_is_allowed_its_own_keys_and_its_neighbours_only():
     assert _keys_of(mine, "egress", "liveliness_token") == watched
     assert _keys_of(mine, "ingress", "query") == {keys.config(1), "swarm/*/config/1"}
     assert _keys_of(mine, "egress", "reply") == {keys.config(1)}
-    assert _keys_of(mine, "egress", "declare_subscriber") == {keys.all_cmds, keys.cmd(1), keys.msg(1)}
+    assert _keys_of(mine, "egress", "declare_subscriber") == {
+        keys.all_cmds,
+        keys.all_msgs,
+        keys.cmd(1),
+        keys.msg(1),
+    }
     text = json.dumps(mine)  # robot 3 is two hops away: no key of it
     assert not re.search(r"/3(/|\")", text), text
+
+
+def test_on_a_disk_graph_a_robot_hears_no_message_key_only_its_radio_inbox():
+    """A disk graph (the sim's radio, ``sim_server.radio``): no robot may subscribe to any other robot's
+    message or liveliness token; it hears its own pose, sensor reading and radio inbox."""
+    keys = wire.Keys("r1")
+    block = acl.access_control(keys, [[0.0] * 4 for _ in range(4)])
+    rules = {rule["id"]: rule for rule in block["rules"]}
+    for robot in range(4):
+        policy = next(policy for policy in block["policies"] if policy["subjects"] == [f"robot-{robot}"])
+        mine = [rules[name] for name in policy["rules"]]
+        heard = {keys.pose(robot), keys.sense(robot), keys.inbox(robot)}
+        assert _keys_of(mine, "ingress", "declare_subscriber") == heard
+        assert _keys_of(mine, "egress", "put") == heard
+        assert _keys_of(mine, "ingress", "declare_liveliness_subscriber") == {keys.alive_sim}
     assert not any(key.endswith("/**") for rule in mine for key in rule["key_exprs"])
 
 

@@ -409,11 +409,34 @@ def test_centralized_expert_runs_as_one_central_process(tmp_path):
     assert record["pid"] == metrics["processes"]["central_pid"]
 
 
-def test_disk_graph_is_bad_input_for_the_pybullet_engine(tmp_path):
-    path = scenario_file(tmp_path, "cycle-local_consensus", topology__kind="disk", topology__radius=1.5)
-    code, stdout, stderr = Run(path, tmp_path / "out").finish()
-    assert code == 2 and stdout == ""
-    assert len(stderr.strip().splitlines()) == 1 and "disk" in stderr
+def test_a_disk_graph_runs_through_the_sims_radio_with_access_control_and_faults(tmp_path):
+    """A disk graph on PyBullet (``sim_server.radio``): access control on by default, every agent
+    subscribed to its own pose and radio inbox only (no other robot's message key), 20% packet loss
+    counted in the summary, and the run judged as any other. Who hears whom: ``tests/test_radio.py``."""
+    path = scenario_file(
+        tmp_path,
+        "cycle-local_consensus",
+        topology__kind="disk",
+        topology__radius=3.0,
+        sim__duration=12,
+    )
+    data = yaml.safe_load(path.read_text())
+    data["faults"] = [{"kind": "packet_loss", "p": 0.2}]
+    path.write_text(yaml.safe_dump(data))
+    out = tmp_path / "out"
+    code, stdout, stderr = Run(path, out).finish()
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert code == (0 if metrics["converged"] else 1), stderr
+    assert "access control: on" in stdout
+    assert metrics["faults"]["messages"]["lost_by_fault"] > 0
+    stats = json.loads((out / "server_stats.json").read_text())
+    assert stats["radio"]["relayed"] > 0 and stats["radio"]["lost_by_fault"] > 0
+    assert stats["radio"]["lost_by_fault"] == metrics["faults"]["messages"]["lost_by_fault"]
+    for i in range(6):
+        record = json.loads((out / "logs" / f"agent_{i}.json").read_text())
+        keys = wire.Keys(record["run"])
+        assert record["subscriptions"] == [keys.pose(i), keys.inbox(i)]
+        assert record["radio"]["missing"] == 0 and record["radio"]["received"] == 240
 
 
 def test_two_triangles_meet_per_component_but_not_globally(tmp_path):

@@ -16,7 +16,13 @@ from swarm.runtime import wire
 
 finite = st.floats(min_value=-1e4, max_value=1e4, allow_nan=False, allow_infinity=False)
 ticks = st.integers(min_value=0, max_value=wire.MAX_TICK)
-DECODERS = [wire.decode_pose, wire.decode_command, wire.decode_message, wire.decode_config]
+DECODERS = [
+    wire.decode_pose,
+    wire.decode_command,
+    wire.decode_message,
+    wire.decode_config,
+    lambda data: wire.decode_inbox(data, 3, 8),
+]
 
 
 def packed(body: dict) -> bytes:
@@ -418,3 +424,34 @@ def test_fixed_layouts_take_the_fast_path():
     for tick in (0, 200, 70_000, 2**33):
         message = wire.encode_message(tick, (0.25, -1.5))
         assert wire._fixed_message(message, 2) == (tick, (0.25, -1.5))
+
+
+def test_inbox_round_trip_and_rejections():
+    """The radio's inbox (``sim_server.radio``): what goes in comes out; a payload built by hand with
+    msgpack (the documented layout) is refused when any part is out of bounds."""
+    values = np.array([[1.5, -2.0, 3.0], [0.0, 1e8, -7.25]])
+    payload = wire.encode_inbox(12, [4, 0], [1.0, 0.5], values, [1, 2, 3, 4])
+    inbox = wire.decode_inbox(payload, 3, 5)
+    assert inbox is not None and inbox.tick == 12 and inbox.senders == (4, 0) and inbox.weights == (1.0, 0.5)
+    np.testing.assert_array_equal(inbox.values, values)
+    assert inbox.counts == dict(zip(wire.INBOX_COUNTS, [1, 2, 3, 4], strict=True))
+    empty = wire.decode_inbox(wire.encode_inbox(0, [], [], np.zeros((0, 3)), [0, 0, 0, 0]), 3, 5)
+    assert empty is not None and empty.senders == () and empty.values.shape == (0, 3)
+    good = {"v": 1, "k": 12, "s": [4, 0], "w": [1.0, 0.5], "m": values.astype("<f8").tobytes(), "c": [0] * 4}
+    assert wire.decode_inbox(msgpack.packb(good, use_bin_type=True), 3, 5) is not None
+    bad = [
+        {"s": [4, 4]},  # a sender twice
+        {"s": [5, 0]},  # no robot 5 of 5
+        {"s": [-1, 0]},
+        {"w": [1.0]},  # one weight short
+        {"w": [1.0, float("nan")]},
+        {"m": values.astype("<f8").tobytes()[:-8]},  # not n x dim values
+        {"m": np.array([[1.0, 2.0, float("inf")], [0, 0, 0]]).astype("<f8").tobytes()},
+        {"c": [0, 0, 0]},  # a count short
+        {"c": [0, 0, -1, 0]},
+        {"k": -1},
+        {"s": "04"},
+    ]
+    for change in bad:
+        assert wire.decode_inbox(msgpack.packb({**good, **change}, use_bin_type=True), 3, 5) is None, change
+    assert wire.decode_inbox(payload, 2, 5) is None  # another message length

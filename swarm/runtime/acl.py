@@ -5,11 +5,14 @@ identified by a Zenoh user name and password (``usrpwd`` authentication), exactl
 graph needs. Agent i (user ``robot-<i>``) may, through the router:
 
 - subscribe to its own pose ``robot/<i>/pose``, its own sensor reading ``robot/<i>/sense`` (scenarios
-  with ``safety``) and its neighbours' messages ``agent/<j>/msg`` (``declare_subscriber`` in, ``put`` out);
+  with ``safety``), its own radio inbox ``robot/<i>/inbox`` (disk graphs: ``sim_server.radio``) and its
+  neighbours' messages ``agent/<j>/msg`` (``declare_subscriber`` in, ``put`` out); on a disk graph it
+  has no graph neighbours: only the server hears the messages, and relays each robot what it hears;
 - publish its command ``robot/<i>/cmd`` and its message ``agent/<i>/msg`` (``put`` in). Zenoh clients
   only send a sample once the router has told them that someone subscribes to it, so the router must
-  also pass them the declarations of those subscribers (``declare_subscriber`` out on ``robot/*/cmd``,
-  the server's subscription, ``robot/<i>/cmd`` and ``agent/<i>/msg``); a declaration carries no data;
+  also pass them the declarations of those subscribers (``declare_subscriber`` out on ``robot/*/cmd``
+  and ``agent/*/msg``, the server's subscriptions, ``robot/<i>/cmd`` and ``agent/<i>/msg``); a
+  declaration carries no data;
 - declare its liveliness token ``alive/agent/<i>`` and watch the sim's and its neighbours' tokens;
 - query its own configuration ``config/<i>`` (also as ``swarm/*/config/<i>``, the run-id discovery).
 
@@ -64,7 +67,13 @@ def robot_rules(
     (``tokens``)."""
     user = user_of(robot)
     ros = ros2_keys or {"heard": [], "published": [], "tokens": []}
-    heard = [keys.pose(robot), keys.sense(robot), *(keys.msg(j) for j in neighbours), *ros["heard"]]
+    heard = [
+        keys.pose(robot),
+        keys.sense(robot),
+        keys.inbox(robot),
+        *(keys.msg(j) for j in neighbours),
+        *ros["heard"],
+    ]
     watched = [keys.alive_sim, *(keys.alive_agent(j) for j in neighbours)]
     configs = [keys.config(robot), Keys.any_run_config(robot)]
 
@@ -85,7 +94,7 @@ def robot_rules(
             "publish-matching",
             "egress",
             ["declare_subscriber"],
-            [keys.all_cmds, keys.cmd(robot), keys.msg(robot), *ros["published"]],
+            [keys.all_cmds, keys.all_msgs, keys.cmd(robot), keys.msg(robot), *ros["published"]],
         ),
         rule("token", "ingress", ["liveliness_token"], [keys.alive_agent(robot), *ros["tokens"]]),
         rule("watch", "ingress", ["declare_liveliness_subscriber", "liveliness_query"], watched),

@@ -13,10 +13,12 @@ from swarm.scenarios.scenario import Scenario
 
 
 def agent_configs(scenario: Scenario, run: str, policy: bytes | None) -> list[wire.AgentConfig]:
-    """Each robot's configuration: its neighbours (and link weights) on the scenario's fixed graph."""
+    """Each robot's configuration: its neighbours (and link weights) on the scenario's fixed graph; on a
+    disk graph none (the sim's radio relays what it hears: ``sim_server.radio``)."""
+    count = scenario.robots.count
     adjacency = scenario.adjacency()
     if adjacency is None:
-        raise ValueError("disk topologies are not supported by the distributed runtime yet")
+        adjacency = np.zeros((count, count))
     common: dict[str, Any] = {
         "run": run,
         "robot_count": scenario.robots.count,

@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from swarm.core import graphs
 from swarm.core.faults import PROCESS_FAULTS
 from swarm.runtime import health, wire
 from swarm.runtime.acl import write_credentials
@@ -334,12 +335,6 @@ def _run_distributed(
     the run early: the agents exit by themselves (``sim.server_lost_s``), metrics come from the
     trajectory so far and the outcome carries ``incomplete`` (the CLI then exits 1).
     """
-    adjacency = scenario.adjacency()
-    if adjacency is None:
-        raise ScenarioError(
-            f"topology.kind: '{scenario.topology.kind}' graphs are not supported by the pybullet engine yet"
-            " (use --engine kinematic)"
-        )
     _check_faults(scenario)
     model = policy_path(scenario, scenario_path)
     if model is not None:
@@ -475,6 +470,10 @@ def _run_distributed(
         write_partial_results(out_dir, f"the trajectory has {len(times_s)} of {steps + 1} ticks")
         raise RunFailed(f"trajectory has {len(times_s)} of {steps + 1} ticks (logs in {logs})")
 
+    adjacency = scenario.adjacency()
+    if adjacency is None:  # a disk graph (the sim's radio, sim_server.radio): that of the last poses
+        assert scenario.topology.radius_m is not None
+        adjacency = graphs.disk(poses[-1, :, :2], scenario.topology.radius_m)
     outcome = task_outcome(scenario, times_s, poses, adjacency)  # rendezvous: summarize
     if incomplete is not None:
         outcome.update(incomplete=incomplete, ticks_planned=steps)

@@ -91,6 +91,10 @@ class Keys:
     def msg(self, robot: int) -> str:
         return f"{self.prefix}/agent/{int(robot)}/msg"
 
+    def inbox(self, robot: int) -> str:
+        """What the sim's radio relays to robot ``robot`` on a disk graph (``sim_server.radio``)."""
+        return f"{self.prefix}/robot/{int(robot)}/inbox"
+
     def config(self, robot: int) -> str:
         return f"{self.prefix}/config/{int(robot)}"
 
@@ -109,6 +113,10 @@ class Keys:
     @property
     def all_cmds(self) -> str:
         return f"{self.prefix}/robot/*/cmd"
+
+    @property
+    def all_msgs(self) -> str:
+        return f"{self.prefix}/agent/*/msg"
 
     @property
     def all_configs(self) -> str:
@@ -136,13 +144,14 @@ class Keys:
         return parts[1] if _RUN_ID.match(parts[1]) else None
 
     def robot_of(self, key: str, kind: str) -> int | None:
-        """Robot index in a concrete key of ``kind`` (``pose``, ``cmd``, ``sense``, ``msg``, ``config``,
-        ``alive``),
+        """Robot index in a concrete key of ``kind`` (``pose``, ``cmd``, ``sense``, ``inbox``, ``msg``,
+        ``config``, ``alive``),
         or None when the key is not of that shape."""
         patterns = {
             "pose": (f"{self.prefix}/robot/", "/pose"),
             "cmd": (f"{self.prefix}/robot/", "/cmd"),
             "sense": (f"{self.prefix}/robot/", "/sense"),
+            "inbox": (f"{self.prefix}/robot/", "/inbox"),
             "msg": (f"{self.prefix}/agent/", "/msg"),
             "config": (f"{self.prefix}/config/", ""),
             "alive": (f"{self.prefix}/alive/agent/", ""),
@@ -202,6 +211,24 @@ class AgentMessage:
 
     tick: int
     values: np.ndarray = field(compare=False)
+
+
+@dataclass(frozen=True)
+class Inbox:
+    """What the sim's radio relays to robot i for a tick on a disk graph (sim -> agent i): the
+    ``senders`` within range whose messages it hears, their link ``weights`` and ``values (n, dim)``,
+    and ``counts`` of the messages of in-range robots it does not hear (``INBOX_COUNTS``)."""
+
+    tick: int
+    senders: tuple[int, ...]
+    weights: tuple[float, ...]
+    values: np.ndarray = field(compare=False)
+    counts: dict[str, int] = field(compare=False)
+
+
+INBOX_COUNTS = ("dropped_by_fault", "lost_by_fault", "delayed_by_fault", "lost")
+"""Per inbox: in-range messages a link fault dropped or lost, heard late under a delay fault, and
+that never reached the radio (a dead or silent sender)."""
 
 
 @dataclass(frozen=True)
@@ -390,6 +417,58 @@ def decode_sensing(data: bytes) -> Sensing | None:
     if tick is None:
         return None
     return Sensing(tick, rows[0], rows[1])
+
+
+def encode_inbox(
+    tick: int,
+    senders: Sequence[int],
+    weights: Sequence[float],
+    values: np.ndarray,
+    counts: Sequence[int],
+) -> bytes:
+    """``values (n, dim)`` travel as little-endian float64 bytes, ``counts`` in ``INBOX_COUNTS`` order."""
+    raw = np.ascontiguousarray(values, dtype="<f8").reshape(-1).tobytes()
+    return _pack(
+        {
+            "k": int(tick),
+            "s": [int(j) for j in senders],
+            "w": [float(w) for w in weights],
+            "m": raw,
+            "c": [int(c) for c in counts],
+        }
+    )
+
+
+def decode_inbox(data: bytes, dim: int, robot_count: int) -> Inbox | None:
+    """None unless the tick is valid, every sender a distinct robot index, one finite weight per sender,
+    ``len(senders) x dim`` message values within ``MAX_MESSAGE_ABS`` and one count per ``INBOX_COUNTS``."""
+    body = _unpack(data, 64 + (8 * max(dim, 1) + 24) * max(robot_count, 1))
+    if body is None:
+        return None
+    tick = _int(body.get("k"), 0, MAX_TICK)
+    senders, weights, raw, counts = body.get("s"), body.get("w"), body.get("m"), body.get("c")
+    if not (isinstance(senders, list) and isinstance(weights, list) and isinstance(counts, list)):
+        return None
+    if tick is None or not isinstance(raw, bytes) or len(weights) != len(senders):
+        return None
+    if len(set(senders)) != len(senders) or any(_int(j, 0, robot_count - 1) is None for j in senders):
+        return None
+    weight_values = [_float(w, MAX_MESSAGE_ABS) for w in weights]
+    count_values = [_int(c, 0, MAX_TICK) for c in counts]
+    if None in weight_values or len(counts) != len(INBOX_COUNTS) or None in count_values:
+        return None
+    if len(raw) != 8 * dim * len(senders):
+        return None
+    values = np.frombuffer(raw, dtype="<f8").astype(np.float64).reshape(len(senders), dim)
+    if not np.all(np.abs(values) <= MAX_MESSAGE_ABS):
+        return None  # NaN fails the comparison too
+    return Inbox(
+        tick,
+        tuple(int(j) for j in senders),
+        cast("tuple[float, ...]", tuple(weight_values)),
+        values,
+        dict(zip(INBOX_COUNTS, cast("list[int]", count_values), strict=True)),
+    )
 
 
 SHORT_MESSAGE_DIM = 64

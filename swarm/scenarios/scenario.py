@@ -470,16 +470,12 @@ class Scenario(_Strict):
                 ("sim", "acl"),
                 f"controller '{self.controller.kind}' needs every pose; access control is per robot",
             )
-        if self.sim.acl and self.topology.proximity:
-            raise KeyedError(("sim", "acl"), "access control needs a fixed graph, not a disk topology")
         return self
 
     def access_control_unavailable(self) -> str | None:
         """Why this run cannot have per-robot access control (None: it can)."""
         if self.controller.central:
             return f"controller '{self.controller.kind}' needs every pose"
-        if self.topology.proximity:
-            return "a disk topology has no fixed graph"
         return None
 
     @property
