@@ -129,6 +129,11 @@ def local_config(scenario_path: str, robot: int, run: str, model: str | None = N
         raise ValueError(
             f"{scenario_path}: robots.count is {scenario.robots.count}: there is no robot {robot}"
         )
+    if scenario.topology.proximity:
+        raise ValueError(
+            f"{scenario_path}: topology.kind: a disk graph needs the sim server's radio to say who is in"
+            " range (docs/distributed-runtime.md); without a sim server give a fixed graph"
+        )
     policy = None
     if scenario.controller.kind == "gnn":
         policy = resolve_model_path(model or scenario.controller.model, Path(scenario_path)).read_bytes()

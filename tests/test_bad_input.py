@@ -54,6 +54,8 @@ def files(tmp_path_factory) -> dict[str, Path]:
         "not_a_policy": "this is not an npz file\n",
         "credentials": "robot-0:secret\n",
         "open_scenario": SCENARIO.read_text().replace("sim: {", "sim: {acl: false, ", 1),
+        "disk_scenario": "name: x\nrobots: {count: 3}\ntopology: {kind: disk, radius_m: 2}\n"
+        "success: {threshold: 1.0}\n",
     }
     paths = {name: root / name for name in contents}
     for name, text in contents.items():
@@ -153,6 +155,7 @@ def _console_script(name: str) -> str:
         (["--robot", "1", "--credentials", "{credentials}", "--password", "x"], "not both"),
         (["--robot", "1", "--user", "robot-1"], "--user needs --password"),
         (["--connect", "tcp/127.0.0.1:7447"], "one of the arguments --robot --robots is required"),
+        (["--robot", "1", "--ros2", "--scenario", "{disk_scenario}"], "a disk graph needs the sim server"),
     ],
     ids=lambda value: " ".join(value) if isinstance(value, list) else None,
 )
