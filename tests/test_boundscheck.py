@@ -69,7 +69,8 @@ SECTIONS = {"rendezvous": None, "coverage": tasks.parse_section({"kind": "covera
 for name, kind in CONTROLLER_KINDS.items():
     if kind.task == "formation":  # numpy (no kernel)
         continue
-    variants += [(name, model) for model in models.values()] if "model" in kind.options else [(name, None)]
+    rendezvous_model = "model" in kind.options and kind.task == "rendezvous"  # others: their shipped one
+    variants += [(name, model) for model in models.values()] if rendezvous_model else [(name, None)]
 
 
 def link_faults(kind):
