@@ -124,16 +124,20 @@ def _onboard_pack_flood(args: ControllerArgs):
     )
 
 
-def _formation_weights(args: ControllerArgs):
+def _learned_weights(args: ControllerArgs, weights_class: Any, default_name: str):
+    """A learned task controller's steering MLP: ``args.policy`` (a path or bytes), else the shipped
+    file ``models/<default_name>``."""
     from pathlib import Path
 
+    if args.policy is None:
+        return weights_class.load(Path(__file__).resolve().parent.parent.parent / "models" / default_name)
+    return weights_class.load(args.policy)
+
+
+def _formation_weights(args: ControllerArgs):
     from swarm.sim.formation_gnn import DEFAULT_MODEL_NAME, FormationGnnWeights
 
-    if args.policy is None:  # the shipped policy
-        return FormationGnnWeights.load(
-            Path(__file__).resolve().parent.parent.parent / "models" / DEFAULT_MODEL_NAME
-        )
-    return FormationGnnWeights.load(args.policy)
+    return _learned_weights(args, FormationGnnWeights, DEFAULT_MODEL_NAME)
 
 
 def _capt_gnn(args: ControllerArgs):
@@ -198,15 +202,9 @@ def _onboard_lloyd_flood(args: ControllerArgs):
 
 
 def _coverage_weights(args: ControllerArgs):
-    from pathlib import Path
-
     from swarm.sim.coverage_gnn import DEFAULT_MODEL_NAME, CoverageGnnWeights
 
-    if args.policy is None:  # the shipped policy
-        return CoverageGnnWeights.load(
-            Path(__file__).resolve().parent.parent.parent / "models" / DEFAULT_MODEL_NAME
-        )
-    return CoverageGnnWeights.load(args.policy)
+    return _learned_weights(args, CoverageGnnWeights, DEFAULT_MODEL_NAME)
 
 
 def _lloyd_gnn(args: ControllerArgs):
