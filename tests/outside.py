@@ -204,6 +204,15 @@ def latest_with_attachment(subscriber) -> tuple[bytes, bytes | None] | None:
     return newest
 
 
+def all_with_attachment(subscriber) -> list[tuple[bytes, bytes | None]]:
+    """Every queued sample's payload and attachment, oldest first."""
+    samples = []
+    while (sample := subscriber.try_recv()) is not None:
+        attachment = sample.attachment
+        samples.append((sample.payload.to_bytes(), None if attachment is None else attachment.to_bytes()))
+    return samples
+
+
 def flush(session, run: str, watch, report: dict) -> None:
     """Wait until the router has taken every put so far, and note then the run's tick.
 
@@ -283,6 +292,7 @@ def attack(args: argparse.Namespace) -> dict:
     newest_pose: bytes | None = None
     newest_msg: bytes | None = None
     replayed_tick = -1  # replay: the tick of the last message put again
+    queued_msgs: list[bytes] = []  # replay: the messages seen since the last poll, in order
     tag_of: dict[bytes, bytes | None] = {}
     period_s = 1.0 / args.rate if args.rate else 0.0
 
@@ -297,15 +307,17 @@ def attack(args: argparse.Namespace) -> dict:
             flush(session, run, watch, report)  # at once: when the router took the puts is the point
         payload = latest(watch)
         tick = tick_of(payload) if payload is not None else None
-        for subscriber, kind_of in ((own, "pose"), (msgs, "msg")):
-            got = latest_with_attachment(subscriber)
-            if got is not None:
-                tag_of.clear() if len(tag_of) > 1000 else None
-                tag_of[got[0]] = got[1]
-                if kind_of == "pose":
-                    newest_pose = got[0]
-                else:
-                    newest_msg = got[0]
+        got = latest_with_attachment(own)
+        if got is not None:
+            tag_of.clear() if len(tag_of) > 1000 else None
+            tag_of[got[0]] = got[1]
+            newest_pose = got[0]
+        for got in all_with_attachment(msgs):  # every one queued: a starved replay still sees each
+            tag_of.clear() if len(tag_of) > 1000 else None
+            tag_of[got[0]] = got[1]
+            newest_msg = got[0]
+            queued_msgs.append(got[0])
+        del queued_msgs[:-64]  # the ring's size: older ones the next poll no longer needs
         if tick is not None:
             last_pose_s = time.monotonic()
         elif time.monotonic() - last_pose_s > args.quiet_s:
@@ -326,19 +338,20 @@ def attack(args: argparse.Namespace) -> dict:
                 report["sent"] += 1
             report["at_tick"], done = now_tick, True
         elif kind == "replay" and newest_msg is not None:
-            msg_tick = tick_of(newest_msg)
             last_tick = args.at_tick + args.ticks - 1  # only messages of ticks at_tick ... last_tick:
             # a starved attacker must not replay what its ring still holds once the run is over
-            if (
-                msg_tick is not None and max(replayed_tick + 1, args.at_tick) <= msg_tick <= last_tick
-            ):  # seen:
-                put(msg_key(run, robot), newest_msg, tag_of[newest_msg])  # before the next genuine one
-                put(msg_key(run, robot), with_values(newest_msg, 1000.0), tag_of[newest_msg])
-                replayed_tick = msg_tick
-                report["copies"] = report.get("copies", 0) + 1
-                report.setdefault("copied_ticks", []).append(msg_tick)
-                report["sent"] += 2
-                report.setdefault("at_tick", msg_tick)
+            for message in queued_msgs:  # in order: each seen message of the window, put again at once
+                msg_tick = tick_of(message)
+                if msg_tick is not None and max(replayed_tick + 1, args.at_tick) <= msg_tick <= last_tick:
+                    put(msg_key(run, robot), message, tag_of[message])  # before the next genuine one
+                    put(msg_key(run, robot), with_values(message, 1000.0), tag_of[message])
+                    replayed_tick = msg_tick
+                    report["copies"] = report.get("copies", 0) + 1
+                    report.setdefault("copied_ticks", []).append(msg_tick)
+                    report["sent"] += 2
+                    report.setdefault("at_tick", msg_tick)
+            queued_msgs.clear()
+            msg_tick = tick_of(newest_msg)
             done = msg_tick is not None and (msg_tick >= last_tick or report.get("copies", 0) >= args.ticks)
         elif kind in ("flood-pose", "flood-msg"):
             source = newest_pose if kind == "flood-pose" else newest_msg
