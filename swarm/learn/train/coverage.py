@@ -1,7 +1,7 @@
 """Imitation of the coverage expert ``lloyd`` by ``lloyd_gnn`` (``swarm.sim.coverage_gnn``): DAgger.
 
 Reads top to bottom: hyperparameters, episodes (rollout + expert labels), the closed-loop check, the
-loop (the fit is ``swarm.learn.train.steering``'s, shared with ``capt_gnn``).
+loop (the fit and the DAgger loop are ``swarm.learn.train.steering``'s, shared with ``capt_gnn``).
 
 - An episode is a batch of ``envs`` starts at every N of ``counts`` (all <= 12) on every graph of
   ``graphs``: the coverage sweep's cells (``swarm.scenarios.task_sweep.cell_starts``: every robot in
@@ -26,26 +26,19 @@ Run: ``swarm train --algo coverage --out runs/coverage`` (``models/README.md``: 
 
 from __future__ import annotations
 
-import csv
-import json
-import logging
-import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from swarm.core.robot import RobotParams, world_to_local
 from swarm.core.tasks import coverage
 from swarm.learn.train import preset_with_overrides
-from swarm.learn.train.steering import Mlp, fit
+from swarm.learn.train.steering import dagger
 from swarm.scenarios.task_sweep import TaskSweepConfig, cell_starts, run_chunk
 from swarm.sim.coverage_controllers import LloydExpert, LloydGnn
 from swarm.sim.coverage_gnn import FEATURES, CoverageGnnWeights
 from swarm.sim.kinematic import KinematicSim
-
-log = logging.getLogger(__name__)
 
 
 # ------------------------------------------------------------------------------------ hyperparameters
@@ -155,68 +148,14 @@ def closed_loop(config: CoverageConfig, weights: CoverageGnnWeights | str, seed:
 
 # ------------------------------------------------------------------------------------ the loop
 def train(config: CoverageConfig) -> Path:
-    out = Path(config.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "config.json").write_text(json.dumps(asdict(config), indent=2) + "\n")
-    torch.manual_seed(config.seed)
-    torch.set_num_threads(1)
-    rng = np.random.default_rng(config.seed)
-    model = Mlp(len(FEATURES), config.hidden)
-    optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
     meta = {"config": asdict(config), "features": list(FEATURES), "speed": "full"}
-    features: list[np.ndarray] = []
-    labels: list[np.ndarray] = []
-    best: tuple[float, CoverageGnnWeights] | None = None
-    rows_log = []
-    started_s = time.perf_counter()
-    baseline = closed_loop(config, "lloyd_flood", config.seed + 1000)  # the same starts as every check
-    expert = closed_loop(config, "lloyd", config.seed + 1000)
-    for iteration in range(config.iterations):
-        weights = model.export(CoverageGnnWeights, meta)
-        beta = 1.0 if iteration == 0 else config.beta_decay**iteration
-        # -- episodes: the expert or the learner drives, the expert labels every state
-        for count in config.counts:
-            for topology in config.graphs:
-                new_features, new_labels = episode(config, weights, beta, topology, count, rng)
-                features.append(new_features)
-                labels.append(new_labels)
-        all_features, all_labels = np.concatenate(features), np.concatenate(labels)
-        # -- fit every row so far (the direction)
-        loss = fit(
-            model,
-            optimiser,
-            all_features,
-            all_labels,
-            steps=config.steps,
-            batch_rows=config.batch_rows,
-            v_max_mps=config.v_max_mps,
-            imitate_speed=False,
-            rng=rng,
-        )
-        # -- closed-loop check
-        weights = model.export(CoverageGnnWeights, meta | {"iteration": iteration, "rows": len(all_features)})
-        first_within_s = closed_loop(config, weights, config.seed + 1000)
-        rows_log.append(
-            {
-                "iteration": iteration,
-                "beta": beta,
-                "rows": len(all_features),
-                "loss": loss,
-                "median_first_within_s": first_within_s,
-                "lloyd_flood_median_first_within_s": baseline,
-                "lloyd_median_first_within_s": expert,
-                "elapsed_s": round(time.perf_counter() - started_s, 1),
-            }
-        )
-        if config.progress:
-            log.info("%s", json.dumps(rows_log[-1]))
-        if best is None or first_within_s < best[0]:
-            best = (first_within_s, weights)
-    assert best is not None
-    with (out / "log.csv").open("w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=list(rows_log[0]))
-        writer.writeheader()
-        writer.writerows(rows_log)
-    path = out / "policy.npz"
-    best[1].save(path)
-    return path
+    return dagger(
+        config,
+        weights_class=CoverageGnnWeights,
+        meta=meta,
+        episode=episode,
+        closed_loop=closed_loop,
+        score="median_first_within_s",
+        references=("lloyd_flood", "lloyd"),
+        imitate_speed=False,  # the direction only
+    )

@@ -1,6 +1,7 @@
 """Imitation of the formation expert ``capt`` by ``capt_gnn`` (``swarm.sim.formation_gnn``): DAgger.
 
-Reads top to bottom: hyperparameters, episodes (rollout + expert labels), the fit, the loop.
+Reads top to bottom: hyperparameters, episodes (rollout + expert labels), the closed-loop check, the
+loop (the fit and the DAgger loop are ``swarm.learn.train.steering``'s, shared with ``lloyd_gnn``).
 
 - An episode is a batch of starts at every N of ``counts`` (all <= 12) on every graph of ``graphs``
   (``sweep_starts`` and ``sweep_section`` of ``swarm.core.tasks.formation``, the sweep's cells), run in
@@ -30,26 +31,19 @@ Run: ``swarm train --algo formation --out runs/formation`` (``models/README.md``
 
 from __future__ import annotations
 
-import csv
-import json
-import logging
-import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from swarm.core import graphs, topologies
 from swarm.core.robot import RobotParams, world_to_local
 from swarm.core.tasks import formation
 from swarm.learn.train import preset_with_overrides
-from swarm.learn.train.steering import Mlp, fit
+from swarm.learn.train.steering import dagger
 from swarm.sim.formation_controllers import CaptGnn, capt_velocity
 from swarm.sim.formation_gnn import FEATURES, FormationGnnWeights
 from swarm.sim.kinematic import KinematicSim
-
-log = logging.getLogger(__name__)
 
 
 # ------------------------------------------------------------------------------------ hyperparameters
@@ -203,67 +197,14 @@ def closed_loop(config: FormationConfig, weights: FormationGnnWeights | str, see
 
 # ------------------------------------------------------------------------------------ the loop
 def train(config: FormationConfig) -> Path:
-    out = Path(config.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "config.json").write_text(json.dumps(asdict(config), indent=2) + "\n")
-    torch.manual_seed(config.seed)
-    torch.set_num_threads(1)
-    rng = np.random.default_rng(config.seed)
-    model = Mlp(len(FEATURES), config.hidden)
-    optimiser = torch.optim.Adam(model.parameters(), lr=config.learning_rate)
     meta = {"config": asdict(config), "features": list(FEATURES), "speed": config.speed}
-    features: list[np.ndarray] = []
-    labels: list[np.ndarray] = []
-    best: tuple[float, FormationGnnWeights] | None = None
-    rows_log = []
-    started_s = time.perf_counter()
-    baseline = closed_loop(config, "capt_flood", config.seed + 1000)  # the same starts as every check
-    for iteration in range(config.iterations):
-        weights = model.export(FormationGnnWeights, meta)
-        beta = 1.0 if iteration == 0 else config.beta_decay**iteration
-        # -- episodes: the expert or the learner drives, the expert labels every state
-        for count in config.counts:
-            for topology in config.graphs:
-                new_features, new_labels = episode(config, weights, beta, topology, count, rng)
-                features.append(new_features)
-                labels.append(new_labels)
-        all_features, all_labels = np.concatenate(features), np.concatenate(labels)
-        # -- fit every row so far
-        loss = fit(
-            model,
-            optimiser,
-            all_features,
-            all_labels,
-            steps=config.steps,
-            batch_rows=config.batch_rows,
-            v_max_mps=config.v_max_mps,
-            imitate_speed=config.speed == "imitated",
-            rng=rng,
-        )
-        # -- closed-loop check
-        trained = meta | {"iteration": iteration, "rows": len(all_features)}
-        weights = model.export(FormationGnnWeights, trained)
-        ratio = closed_loop(config, weights, config.seed + 1000)
-        rows_log.append(
-            {
-                "iteration": iteration,
-                "beta": beta,
-                "rows": len(all_features),
-                "loss": loss,
-                "median_ratio": ratio,
-                "capt_flood_median_ratio": baseline,
-            }
-            | {"elapsed_s": round(time.perf_counter() - started_s, 1)}
-        )
-        if config.progress:
-            log.info("%s", json.dumps(rows_log[-1]))
-        if best is None or ratio < best[0]:
-            best = (ratio, weights)
-    assert best is not None
-    with (out / "log.csv").open("w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=list(rows_log[0]))
-        writer.writeheader()
-        writer.writerows(rows_log)
-    path = out / "policy.npz"
-    best[1].save(path)
-    return path
+    return dagger(
+        config,
+        weights_class=FormationGnnWeights,
+        meta=meta,
+        episode=episode,
+        closed_loop=closed_loop,
+        score="median_ratio",
+        references=("capt_flood",),
+        imitate_speed=config.speed == "imitated",
+    )
