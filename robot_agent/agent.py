@@ -589,20 +589,12 @@ class RobotAgent:
                     break
         return missing
 
-    def _wait_for_reading(self, tick: int, until_s: float) -> None:
-        """lockstep: poll until this tick's sensor reading is in, or the deadline."""
-        assert self._sense is not None
+    def _wait_for_sample(self, reader: SenseReader | InboxReader, tick: int, until_s: float) -> None:
+        """lockstep: poll until this tick's sample from the sim (the sensor reading; on a disk graph the
+        radio's inbox) is in, or the deadline."""
         while not self._ended() and time.perf_counter() < until_s:
             time.sleep(POLL_S)
-            if self._sense.drain(tick, self._run_key):
-                return
-
-    def _wait_for_inbox(self, tick: int, until_s: float) -> None:
-        """lockstep, a disk graph: poll until this tick's inbox from the radio is in, or the deadline."""
-        assert self._radio is not None
-        while not self._ended() and time.perf_counter() < until_s:
-            time.sleep(POLL_S)
-            if self._radio.drain(tick, self._run_key):
+            if reader.drain(tick, self._run_key):
                 return
 
     def _heard_by_radio(self, radio: InboxReader, tick: int) -> tuple[list[int], list, list[float]]:
@@ -898,7 +890,7 @@ class RobotAgent:
             self._drain_messages()
             sense = self._sense
             if sense is not None and not sense.drain(tick, run_key) and lockstep:
-                self._wait_for_reading(tick, time.perf_counter() + config.neighbour_deadline_s)
+                self._wait_for_sample(sense, tick, time.perf_counter() + config.neighbour_deadline_s)
             if lockstep and self._waiting_for(tick):
                 wait_start_s = time.perf_counter()
                 self._wait_for_messages(tick, wait_start_s + config.neighbour_deadline_s)
@@ -907,7 +899,7 @@ class RobotAgent:
             radio = self._radio
             if radio is not None and not radio.drain(tick, run_key) and lockstep:
                 wait_start_s = time.perf_counter()
-                self._wait_for_inbox(tick, wait_start_s + config.neighbour_deadline_s)
+                self._wait_for_sample(radio, tick, wait_start_s + config.neighbour_deadline_s)
                 counters.neighbour_wait_s.append(time.perf_counter() - wait_start_s)
                 counters.ticks_waited += 1
             compute_start_s = time.perf_counter()
