@@ -61,9 +61,11 @@ class Radio:
         faults, empty = self.faults, self.faults.empty
         senders, messages = [], []
         dropped = lost_by_fault = delayed = lost = 0
-        for sender in range(self.count):
-            if sender == receiver:
-                continue
+        in_range = np.zeros(self.count, dtype=bool)
+        for graph in self.links.values():  # a robot never in range in the kept ticks sends it nothing
+            in_range |= graph[receiver]
+        in_range[receiver] = False
+        for sender in np.flatnonzero(in_range).tolist():
             box = self.boxes[sender]
             delay = 0 if empty else faults.delay_ticks(sender, receiver, tick)
 
