@@ -106,7 +106,7 @@ def _args(kind_section, count, robot_id=0, **more):
     )
 
 
-@pytest.mark.parametrize("kind", ["lloyd_local", "lloyd_flood"])
+@pytest.mark.parametrize("kind", ["lloyd_local", "lloyd_flood", "lloyd_gnn"])  # lloyd_gnn: its shipped policy
 def test_a_robot_hears_of_a_robot_k_hops_away_no_sooner_than_k_ticks(kind):
     """Decentralization from outside: on a line of 8, moving robot 7's start changes nothing of robot
     0's commands for the first 7 ticks (7 hops), and does change the swarm's later. Robot 7 sits next

@@ -1,10 +1,10 @@
 """The learned coverage controller ``lloyd_gnn`` (``swarm.sim.coverage_gnn``) and its training.
 
-Oracles: hand-made poses and tables (the features), the definition of decentralization (a robot's
-first k ticks do not depend on robots more than k hops away), the quadrature's cost recomputed here
-from the raw positions (closed loop, the PyBullet run), and files written by hand for the loader. The
-per-robot form against the batched one, every topology and link fault: ``tests/test_contract.py``
-(every controller kind)."""
+Oracles: hand-made poses and tables (the features), the quadrature's cost recomputed here from the
+raw positions (closed loop, the PyBullet run), and files written by hand for the loader.
+Decentralization (a robot's first k ticks do not depend on robots more than k hops away):
+``tests/test_coverage.py``, over every decentralized coverage kind. The per-robot form against the
+batched one, every topology and link fault: ``tests/test_contract.py`` (every controller kind)."""
 
 from __future__ import annotations
 
@@ -16,14 +16,13 @@ import numpy as np
 import pytest
 import yaml
 
-from swarm.core import graphs, tasks
+from swarm.core import tasks
 from swarm.core.robot import RobotParams
 from swarm.core.tasks import coverage
 from swarm.learn.train import coverage as train_coverage
-from swarm.sim.controller_kinds import ControllerArgs, batched_controller, onboard_controller
+from swarm.sim.controller_kinds import ControllerArgs, onboard_controller
 from swarm.sim.coverage_gnn import FEATURES, CoverageGnnWeights, coverage_features
 from swarm.sim.formation_gnn import FormationGnnWeights
-from swarm.sim.kinematic import KinematicSim
 from swarm.sim.steering_mlp import PolicyFileError, local_command
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -86,31 +85,6 @@ def test_the_command_vanishes_on_the_centroid_whatever_the_weights(seed):
 
 def _section():
     return tasks.parse_section({"kind": "coverage", "grid_per_axis": 24})
-
-
-def test_lloyd_gnn_robot_zero_ignores_robots_beyond_k_hops_for_k_ticks():
-    """With the shipped policy, on a line of 8: moving robot 7's start (placed beside robot 0) leaves
-    robot 0's first 7 commands unchanged, and changes the swarm's later."""
-    count = 8
-    rng = np.random.default_rng(3)
-    start = np.concatenate([rng.uniform(-1, 1, (1, count, 2)), rng.uniform(-np.pi, np.pi, (1, count, 1))], -1)
-    start[0, 7, :2] = start[0, 0, :2] + [0.3, 0.0]
-    moved = start.copy()
-    moved[0, 7, :2] += [0.1, 0.2]
-    commands = []
-    for poses in (start, moved):
-        args = ControllerArgs(robot=ROBOT, control_period_s=DT, robot_count=count, task=_section())
-        sim = KinematicSim(
-            ROBOT, batched_controller("lloyd_gnn", args), DT, poses, adjacency=graphs.line(count)[None]
-        )
-        ticks = []
-        for _ in range(12):
-            u_world = sim.act()
-            ticks.append(u_world[0].copy())
-            sim.move(u_world)
-        commands.append(np.array(ticks))
-    assert np.array_equal(commands[0][:7, 0], commands[1][:7, 0])
-    assert not np.array_equal(commands[0][:, 6], commands[1][:, 6])
 
 
 def test_the_shipped_policy_covers_a_cycle_of_twelve():
