@@ -336,13 +336,6 @@ class SimServer:
             return False  # a disk graph: the radio needs every expected message of this tick too
         return len(self._fresh) >= len(self._expected) and self._expected.issubset(self._fresh)
 
-    def _all_in(self) -> bool:
-        """lockstep: every expected agent's command of this tick is in, and on a disk graph its
-        message too (lock held)."""
-        if self._radio is not None and not self._expected.issubset(self._msg_fresh):
-            return False
-        return self._expected.issubset(self._cmds)
-
     def _on_alive(self, sample: zenoh.Sample) -> None:
         robot = self.keys.robot_of(str(sample.key_expr), "alive")
         if robot is None or robot >= self.count:
@@ -633,7 +626,7 @@ class SimServer:
                 self._publish(publishers, tick, poses)
                 deadline_s = self._published_at_s[tick] + sim.deadline_s
                 with self._cond:
-                    all_in = self._wait(self._all_in, deadline_s)
+                    all_in = self._wait(self._all_fresh, deadline_s)  # lockstep takes this tick's only
                     cmds, alive = dict(self._cmds), set(self._alive)
                 if self._stop:
                     return EXIT_INTERRUPTED
