@@ -242,6 +242,24 @@ def test_reverse_drives_backwards_to_a_target_behind():
     assert np.abs(forward[0] - u[0]).max() > 0.1  # behind: the point ahead of the axle leads instead
 
 
+@pytest.mark.parametrize("backward", [True, False])
+def test_a_chosen_law_reaches_the_target_and_arrives_facing_its_way(backward):
+    """``backward`` forces the law whatever the heading: both robots (target ahead, target behind)
+    reach it, facing back along their way in (backward) or along it (forward). Integrated here from
+    the wheel speeds, not by the engine."""
+    poses = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, np.pi]])
+    targets = np.array([[2.0, 0.5], [2.0, 0.5]])
+    for _ in range(400):
+        u = drive_toward_velocity(poses, targets, ROBOT.v_max_mps, DT, backward=np.array([backward] * 2))
+        wheels = point_velocity_to_wheels(u, poses[:, 2], ROBOT)
+        v, w = wheels.mean(-1), (wheels[:, 1] - wheels[:, 0]) / (2 * ROBOT.half_axle_m)
+        poses = poses + DT * np.c_[v * np.cos(poses[:, 2]), v * np.sin(poses[:, 2]), w]
+    np.testing.assert_allclose(poses[:, :2], targets, atol=1e-3)
+    way_in = targets[0] / np.linalg.norm(targets[0])
+    facing = np.c_[np.cos(poses[:, 2]), np.sin(poses[:, 2])] @ way_in
+    assert np.all(facing < -0.9) if backward else np.all(facing > 0.9), facing
+
+
 @pytest.mark.parametrize("offset_m", [ROBOT.offset_m, 0.2])
 def test_centralized_mec_kernel_is_the_numpy_expert(offset_m):
     rng = np.random.default_rng(8)

@@ -4,21 +4,25 @@ the pack_flood controller gathering filtered bodies where mec_flood jams."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from swarm.core import graphs
 from swarm.core.mec import welzl_circle
 from swarm.core.obstacles import Capsules
 from swarm.core.packing import diameter, hex_packing, packing_limit_m, packing_lower_bound_m
 from swarm.core.robot import RobotParams
-from swarm.core.safety import SafetyParams
+from swarm.core.safety import SafetyParams, body_distance_m
 from swarm.scenarios.safety_results import contact_results
 from swarm.sim.controller_kinds import ControllerArgs, batched_controller
 from swarm.sim.kinematic import KinematicSim
 from swarm.sim.pack_flood import default_spacing_m
 from swarm.sim.safety_filter import SafetyFilter
+
+SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios" / "safety"
 
 KNOWN_OPTIMUM = {  # least diameter of N points at mutual distance >= 1 (Bateman and Erdos 1951; Bezdek)
     2: 1.0,
@@ -83,3 +87,26 @@ def test_pack_flood_gathers_filtered_bodies_where_mec_flood_jams():
     packing = diameter(hex_packing(12, default_spacing_m(robot)))
     assert finals["pack_flood"] <= packing + 2 * 0.08
     assert finals["mec_flood"] > 1.3 * finals["pack_flood"], finals
+
+
+@pytest.mark.parametrize("start", ["two-cluster-20", "strip-20"])
+def test_pack_flood_packs_20_bodies_within_1_3_of_the_packing_limit(start):
+    """The starts of ``scenarios/safety`` where the two halves meet head on: before the robots arrived
+    heading outward (``pack_flood.HEADING_OUT``) their controlled points met 2 l closer than their
+    slots and the filter held some short (1.31x the bound on both; 0.28 m short of a slot).
+    The oracle is outside the controller: the final axles' diameter against the Groemer-Oler bound."""
+    scenario = yaml.safe_load((SCENARIOS / f"{start}.yaml").read_text())
+    robot = RobotParams()
+    poses = np.array(scenario["robots"]["init"]["poses"], dtype=np.float64)[None]
+    count = poses.shape[1]
+    controller = batched_controller("pack_flood", ControllerArgs(robot=robot, robot_count=count))
+    safety = SafetyParams()
+    layer = SafetyFilter(robot, safety, Capsules())
+    adjacency = {"cycle": graphs.cycle, "line": graphs.line}[scenario["topology"]["kind"]](count)
+    sim = KinematicSim(robot, controller, 0.05, poses, adjacency=adjacency, safety=layer)
+    trajectory = sim.rollout(int(scenario["sim"]["duration_s"] / 0.05))
+    assert contact_results(trajectory[:, 0], robot.body_radius_m, Capsules())["contacts"]["ticks"] == 0
+    final = diameter(trajectory[-1, 0, :, :2])
+    assert final <= 1.3 * packing_lower_bound_m(count, body_distance_m(robot, safety)), final
+    short_m = np.linalg.norm(trajectory[-1, 0, :, :2] - controller._slot_of[0], axis=-1)
+    assert short_m.max() <= 2 * robot.offset_m, short_m  # before: 0.28 m short (two-cluster)

@@ -51,6 +51,7 @@ def drive_toward_velocity(
     v_max_mps: float,
     control_period_s: float,
     reverse: bool = True,
+    backward: np.ndarray | bool | None = None,
 ) -> np.ndarray:
     """Full-speed drive of a robot's AXLE toward a target, forward or (``reverse``) backward.
 
@@ -68,13 +69,21 @@ def drive_toward_velocity(
     this command (eq. 2.3 with offset ``-l`` equals eq. 2.3 with ``+l`` on the command reflected
     across the heading axis, ``2 <u, h> h - u``), so every engine's point-velocity path and wheel
     saturation (``swarm.core.robot``) apply unchanged.
+
+    ``backward`` (bool, broadcast to ``poses[..., 0]``), when given, chooses the law per robot instead
+    of ``reverse``: the backward one where True, wherever the target is (the backward unicycle is the
+    forward one with its heading turned by pi, so the same argument holds), and the robot arrives
+    with its heading pointing back along its way in.
     """
     poses = np.asarray(poses, dtype=np.float64)
     targets = np.asarray(targets, dtype=np.float64)
     heading = np.stack([np.cos(poses[..., 2]), np.sin(poses[..., 2])], axis=-1)
     delta = targets - poses[..., :2]
-    behind = (delta * heading).sum(axis=-1) < 0.0
-    backward = behind if reverse else np.zeros_like(behind)
+    if backward is None:
+        behind = (delta * heading).sum(axis=-1) < 0.0
+        law = behind if reverse else np.zeros_like(behind)
+    else:
+        law = np.broadcast_to(np.asarray(backward, dtype=bool), poses.shape[:-1])
     distance = np.sqrt((delta * delta).sum(axis=-1))
     scale = np.where(
         distance > 0.0,
@@ -83,7 +92,7 @@ def drive_toward_velocity(
     )
     u = delta * scale[..., None]
     along = (u * heading).sum(axis=-1, keepdims=True)
-    return np.where(backward[..., None], 2.0 * along * heading - u, u)
+    return np.where(law[..., None], 2.0 * along * heading - u, u)
 
 
 def centralized_mec_velocity(

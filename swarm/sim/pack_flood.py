@@ -44,6 +44,18 @@ def default_spacing_m(robot: RobotParams) -> float:
     return 2.0 * (robot.body_radius_m + robot.offset_m) + SPACING_MARGIN_M
 
 
+HEADING_OUT = True
+"""Each robot arrives with its heading pointing away from the centre (it drives backward when its way
+in points inward), so that its controlled point, ``l`` ahead of its axle, lies outward of its slot.
+Why: the barrier keeps controlled points ``D_s`` apart and the slots are only 2 cm wider than that; a
+robot that drove in forward has its controlled point ``l`` inward of its slot, and two neighbours'
+points can meet ``2 l`` (10 cm) closer than their slots, so the filter holds the later one short of its
+slot (the jams of two-cluster starts, where the two halves meet head on). With every heading radial
+and outward the points are ``F(s_i) = s_i + l (s_i - c) / |s_i - c|``, and ``F`` is the gradient of the
+1-strongly convex ``|x - c|^2 / 2 + l |x - c|``, so ``|F(s_i) - F(s_j)| >= |s_i - s_j|``: no two
+controlled points closer than their slots. A heading that arrives along the way in is radial only
+roughly; measured in ``docs/safety.md``."""
+
 STAGGER = 1.0
 """Arrival order, inner slots first: a slot at distance ``rho`` from the centre is reached ``STAGGER rho /
 v_max`` after the centre would be, so that outer bodies do not wall inner slots off. Measured on 24
@@ -53,12 +65,13 @@ two seeds; final max_pairwise over the packing's lower bound): 0 (all arrive tog
 bodies the filter stops short of their slot (issue 21's open point)."""
 
 
-def plan(starts: np.ndarray, shape: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(slots (M, 2), speed factors (M,))`` for M known starts: the packing ``shape`` centred on the
-    starts' minimum enclosing circle, each start's CAPT slot, and each robot's fraction of ``v_max``
-    so that it arrives at ``t_i = t_0 + STAGGER rho_i`` (in metres at ``v_max``; ``rho_i`` its slot's
-    distance from the centre, ``t_0`` the least that lets every robot make it: ``max_j (d_j -
-    STAGGER rho_j)``, ``d_j`` the distance to go): ``d_i / t_i``, at most 1."""
+def plan(starts: np.ndarray, shape: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(slots (M, 2), speed factors (M,), backward (M,))`` for M known starts: the packing ``shape``
+    centred on the starts' minimum enclosing circle, each start's CAPT slot, each robot's fraction of
+    ``v_max`` so that it arrives at ``t_i = t_0 + STAGGER rho_i`` (in metres at ``v_max``; ``rho_i`` its
+    slot's distance from the centre, ``t_0`` the least that lets every robot make it: ``max_j (d_j -
+    STAGGER rho_j)``, ``d_j`` the distance to go): ``d_i / t_i``, at most 1; and whether it drives
+    there backward: when its way in points inward, ``<s_i - x_i, s_i - c> < 0`` (:data:`HEADING_OUT`)."""
     cx, cy, _ = welzl_circle(starts[:, 0].tolist(), starts[:, 1].tolist(), len(starts))
     centre = np.array([cx, cy])
     slots = shape + centre
@@ -67,7 +80,8 @@ def plan(starts: np.ndarray, shape: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     radius = np.sqrt(((targets - centre) ** 2).sum(-1))
     arrival = np.max(distance - STAGGER * radius) + STAGGER * radius
     factors = np.where(arrival > 0, distance / np.where(arrival > 0, arrival, 1.0), 1.0)
-    return targets, np.minimum(factors, 1.0)
+    backward = ((targets - starts) * (targets - centre)).sum(-1) < 0.0
+    return targets, np.minimum(factors, 1.0), backward
 
 
 class OnboardPackFlood:
@@ -94,6 +108,7 @@ class OnboardPackFlood:
         self._known = np.zeros(self.count, dtype=bool)  # what the plan was computed from
         self._target: np.ndarray | None = None
         self._speed = 0.0
+        self._backward: bool | None = None
         self._ticks = 0
         import scipy.optimize  # noqa: F401  (capt_assignment's, before the agent is ready: formation_onboard)
 
@@ -109,13 +124,16 @@ class OnboardPackFlood:
         ready = bool(known.all()) or self._ticks > self.count
         if ready and not np.array_equal(known, self._known):
             members = np.flatnonzero(known)
-            targets, factors = plan(memory[members, 1:], self.shape)
+            targets, factors, backward = plan(memory[members, 1:], self.shape)
             mine = np.searchsorted(members, self.robot_id)
             self._target, self._speed = targets[mine], self.robot.v_max_mps * factors[mine]
+            self._backward = bool(backward[mine]) if HEADING_OUT else None
             self._known = known
         if self._target is None:
             return np.zeros(2), memory.reshape(-1).copy()
-        u_world = drive_toward_velocity(pose, self._target, self._speed, self.control_period_s, self.reverse)
+        u_world = drive_toward_velocity(
+            pose, self._target, self._speed, self.control_period_s, self.reverse, backward=self._backward
+        )
         return u_world, memory.reshape(-1).copy()
 
 
@@ -143,6 +161,7 @@ class PackFlood(CaptFlood):
         self._slot_of = np.zeros((0, self.count, 2))
         self._speeds = np.zeros((0, self.count))
         self._planned = np.zeros((0, self.count), dtype=bool)
+        self._backward = np.zeros((0, self.count), dtype=bool)
         self._ticks = np.zeros((0, self.count), dtype=np.int64)
 
     def act(
@@ -158,6 +177,7 @@ class PackFlood(CaptFlood):
             self._slot_of = np.zeros((batch, count, 2))
             self._speeds = np.zeros((batch, count))
             self._planned = np.zeros((batch, count), dtype=bool)
+            self._backward = np.zeros((batch, count), dtype=bool)
             self._ticks = np.zeros((batch, count), dtype=np.int64)
         assert self._known is not None
         self._ticks[fresh] = 0
@@ -167,14 +187,17 @@ class PackFlood(CaptFlood):
         ready = known.all(axis=-1) | (self._ticks > count)
         for b, i in zip(*np.nonzero(ready & np.any(known != self._known, axis=-1)), strict=True):
             members = np.flatnonzero(known[b, i])
-            targets, factors = plan(memory[b, i, members, 1:], self.shape)
+            targets, factors, backward = plan(memory[b, i, members, 1:], self.shape)
             mine = np.searchsorted(members, i)
             self._slot_of[b, i] = targets[mine]
             self._speeds[b, i] = self.robot.v_max_mps * factors[mine]
+            self._backward[b, i] = backward[mine]
             self._planned[b, i] = True
             self._known[b, i] = known[b, i]
         targets = np.where(self._planned[..., None], self._slot_of, poses[..., :2])
         speeds: Any = self._speeds  # per robot (drive_toward_velocity broadcasts it)
-        u_world = drive_toward_velocity(poses, targets, speeds, self.control_period_s, self.reverse)
+        law = self._backward if HEADING_OUT else None
+        period_s = self.control_period_s
+        u_world = drive_toward_velocity(poses, targets, speeds, period_s, self.reverse, backward=law)
         u_world[~self._planned] = 0.0
         return u_world, memory.reshape(batch, count, 3 * count)
