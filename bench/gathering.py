@@ -48,6 +48,7 @@ from swarm.core.safety import SafetyParams, body_distance_m, with_engine_margin
 START_KINDS = ("uniform", "two-cluster", "strip", "ring")
 GRAPHS = ("complete", "cycle", "line", "disk")
 VARIANTS = (("mec_flood", True), ("pack_flood", True), ("mec_flood", False))
+VARIANT_NAMES = {"mec_flood:on": VARIANTS[0], "pack_flood:on": VARIANTS[1], "mec_flood:off": VARIANTS[2]}
 RUN_TIMEOUT_S = 3600
 
 
@@ -183,6 +184,18 @@ def main(argv: list[str] | None = None) -> int:
         help="each start on its graph of scenarios/safety/ only (uniform-complete, two-cluster-cycle,"
         " strip-line, ring-disk), not on every graph",
     )
+    parser.add_argument(
+        "--variants",
+        nargs="*",
+        default=list(VARIANT_NAMES),
+        choices=list(VARIANT_NAMES),
+        help="controller:filter variants to run (default: all three)",
+    )
+    parser.add_argument(
+        "--stem",
+        default=None,
+        help="name of the result files (default: gathering, or gathering_<engines> for other engines)",
+    )
     add_output_arguments(parser)
     args = parser.parse_args(argv)
     out = output_dir(args)
@@ -194,11 +207,12 @@ def main(argv: list[str] | None = None) -> int:
         for count in args.sizes
         for kind in args.starts
         for graph in args.graphs
-        for controller, filtered in VARIANTS
+        for controller, filtered in (VARIANT_NAMES[name] for name in args.variants)
         if not args.paired or GRAPHS.index(graph) == START_KINDS.index(kind)
     ]
     rows = []
-    stem = "gathering" if args.engines == ["kinematic"] else "gathering_" + "_".join(args.engines)
+    default_stem = "gathering" if args.engines == ["kinematic"] else "gathering_" + "_".join(args.engines)
+    stem = args.stem or default_stem
     with tempfile.TemporaryDirectory(prefix="gathering-") as work:
         for engine, count, kind, graph, controller, filtered in progress(
             jobs, args, desc="cells", unit="cell"
