@@ -172,6 +172,16 @@ def write(out: Path, rows: list[dict], command: str, stem: str = "gathering") ->
     (out / f"{stem}.md").write_text("\n".join(lines) + "\n")
 
 
+def cell_key(row: dict) -> tuple:
+    return (row["engine"], row["robots"], row["start"], row["graph"], row["controller"], row["filtered"])
+
+
+def cell_order(row: dict) -> tuple:
+    """The order in which ``main`` runs the cells (engine, N, start, graph, variant)."""
+    place = (START_KINDS.index(row["start"]), GRAPHS.index(row["graph"]))
+    return (row["engine"], row["robots"], *place, VARIANTS.index((row["controller"], row["filtered"])))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--engines", nargs="*", default=["kinematic"], choices=["kinematic", "pybullet"])
@@ -192,6 +202,12 @@ def main(argv: list[str] | None = None) -> int:
         help="controller:filter variants to run (default: all three)",
     )
     parser.add_argument(
+        "--merge",
+        action="store_true",
+        help="keep the cells of the existing result file that this run does not measure (its command is"
+        " kept beside this one's), instead of starting the file afresh",
+    )
+    parser.add_argument(
         "--stem",
         default=None,
         help="name of the result files (default: gathering, or gathering_<engines> for other engines)",
@@ -210,9 +226,14 @@ def main(argv: list[str] | None = None) -> int:
         for controller, filtered in (VARIANT_NAMES[name] for name in args.variants)
         if not args.paired or GRAPHS.index(graph) == START_KINDS.index(kind)
     ]
-    rows = []
     default_stem = "gathering" if args.engines == ["kinematic"] else "gathering_" + "_".join(args.engines)
     stem = args.stem or default_stem
+    rows, kept = [], []
+    if args.merge and (out / f"{stem}.json").exists():
+        previous = json.loads((out / f"{stem}.json").read_text())
+        measured = set(jobs)
+        kept = [row for row in previous["cells"] if cell_key(row) not in measured]
+        command = f"{previous['command']}; then {command.strip()} (--merge: cells of both)"
     with tempfile.TemporaryDirectory(prefix="gathering-") as work:
         for engine, count, kind, graph, controller, filtered in progress(
             jobs, args, desc="cells", unit="cell"
@@ -236,7 +257,7 @@ def main(argv: list[str] | None = None) -> int:
             }
             row.update(run_cell(scenario, engine, Path(work)))
             rows.append(row)
-            write(out, rows, command.strip(), stem)
+            write(out, sorted([*kept, *rows], key=cell_order), command.strip(), stem)
     print(f"{len(rows)} cells: {out / (stem + '.md')}")
     return (
         0
