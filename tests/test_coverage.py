@@ -67,6 +67,17 @@ def test_a_gaussian_density_pulls_the_reference_to_its_mean():
     assert np.linalg.norm(positions.mean(axis=0) - [0.5, 0.5]) < 0.15
 
 
+@pytest.mark.parametrize("count", [6, 12, 23, 24, 50, 100, 200])
+def test_a_sweep_cell_gives_every_robot_its_share_of_quadrature_points(count):
+    """Lloyd on a grid of a few points a cell stops short (bench/results/lloyd_quadrature.md): the
+    sweep's square has at least QUADRATURE_POINTS_PER_ROBOT points a robot, and the default grid (the
+    results of N <= 23 unchanged) wherever that gives enough."""
+    points, _ = coverage.sweep_section(count).quadrature()
+    assert len(points) >= coverage.QUADRATURE_POINTS_PER_ROBOT * count
+    grid = coverage.sweep_section(count).grid_per_axis
+    assert grid == 48 if 48 * 48 >= 100 * count else (grid - 1) ** 2 < 100 * count  # no finer than needed
+
+
 def test_a_tie_point_belongs_to_every_cell_it_is_nearest_to_in_both_forms():
     """Grid of 8 cells per side on [0, 4]^2 (points at 0.25 .. 3.75); robots at (1, 0.25) and
     (1.5, 0.25): the points of column x = 1.25 are as near one as the other and count in both cells."""

@@ -274,11 +274,29 @@ def sweep_side_m(count: int) -> float:
     return 0.9 * math.sqrt(count)
 
 
+QUADRATURE_POINTS_PER_ROBOT = 100
+"""How many quadrature points a sweep cell gives each robot (at least; :func:`sweep_grid_per_axis`).
+Why: Lloyd's map on the grid is k-means on its points, and a cell of a few points has a fixed point
+where a continuous cell would still move (moving the robot a little moves no point across its cell's
+boundary). Measured (``bench/results/lloyd_quadrature.md``): from the one-corner starts at N = 100,
+Lloyd at full speed stopped at 1.32-1.33 H_ref with 48 points a side (23 a robot) and ended at
+1.05-1.06 with 100 a side."""
+
+
+def sweep_grid_per_axis(count: int) -> int:
+    """``max(48, ceil(sqrt(QUADRATURE_POINTS_PER_ROBOT N)))``: 48 (the default) up to N = 23, 71 at 50,
+    100 at 100."""
+    return max(48, math.ceil(math.sqrt(QUADRATURE_POINTS_PER_ROBOT * count)))
+
+
 def sweep_section(count: int) -> CoverageSection:
     """A sweep cell: the uniform density on a square of side :func:`sweep_side_m` centred at the origin
-    (``bench/coverage_kinematic.py``'s uniform cells)."""
+    (``bench/coverage_kinematic.py``'s uniform cells), on :func:`sweep_grid_per_axis` points a side."""
     half = sweep_side_m(count) / 2
-    return CoverageSection(region=[(-half, -half), (half, -half), (half, half), (-half, half)])
+    return CoverageSection(
+        region=[(-half, -half), (half, -half), (half, half), (-half, half)],
+        grid_per_axis=sweep_grid_per_axis(count),
+    )
 
 
 def sweep_starts(rng: np.random.Generator, number: int, count: int) -> np.ndarray:
