@@ -194,18 +194,9 @@ def with_values(payload: bytes, value: float) -> bytes:
     return pack(body)
 
 
-def latest_with_attachment(subscriber) -> tuple[bytes, bytes | None] | None:
-    """The newest queued sample's payload and attachment (a genuine sample's authentication tag: an
-    attacker who sees it may copy it), or None."""
-    newest = None
-    while (sample := subscriber.try_recv()) is not None:
-        attachment = sample.attachment
-        newest = (sample.payload.to_bytes(), None if attachment is None else attachment.to_bytes())
-    return newest
-
-
 def all_with_attachment(subscriber) -> list[tuple[bytes, bytes | None]]:
-    """Every queued sample's payload and attachment, oldest first."""
+    """Every queued sample's payload and attachment (a genuine sample's authentication tag: an attacker
+    who sees it may copy it), oldest first."""
     samples = []
     while (sample := subscriber.try_recv()) is not None:
         attachment = sample.attachment
@@ -289,11 +280,11 @@ def attack(args: argparse.Namespace) -> dict:
     entities += [watch, own, msgs]
     give_up_s, last_pose_s = time.monotonic() + args.timeout, time.monotonic()
     done = False
-    newest_pose: bytes | None = None
-    newest_msg: bytes | None = None
+    # each sample seen is kept with its attachment (the run's tag), which a forgery must carry too
+    newest_pose: tuple[bytes, bytes | None] | None = None
+    newest_msg: tuple[bytes, bytes | None] | None = None
     replayed_tick = -1  # replay: the tick of the last message put again
-    queued_msgs: list[bytes] = []  # replay: the messages seen since the last poll, in order
-    tag_of: dict[bytes, bytes | None] = {}
+    queued_msgs: list[tuple[bytes, bytes | None]] = []  # replay: the messages seen since the last poll
     period_s = 1.0 / args.rate if args.rate else 0.0
 
     block = zenoh.CongestionControl.BLOCK  # what it counts as sent is what the router took
@@ -307,51 +298,47 @@ def attack(args: argparse.Namespace) -> dict:
             flush(session, run, watch, report)  # at once: when the router took the puts is the point
         payload = latest(watch)
         tick = tick_of(payload) if payload is not None else None
-        got = latest_with_attachment(own)
-        if got is not None:
-            tag_of.clear() if len(tag_of) > 1000 else None
-            tag_of[got[0]] = got[1]
-            newest_pose = got[0]
+        for got in all_with_attachment(own):
+            newest_pose = got
         for got in all_with_attachment(msgs):  # every one queued: a starved replay still sees each
-            tag_of.clear() if len(tag_of) > 1000 else None
-            tag_of[got[0]] = got[1]
-            newest_msg = got[0]
-            queued_msgs.append(got[0])
+            newest_msg = got
+            queued_msgs.append(got)
         del queued_msgs[:-64]  # the ring's size: older ones the next poll no longer needs
         if tick is not None:
             last_pose_s = time.monotonic()
         elif time.monotonic() - last_pose_s > args.quiet_s:
             break  # the run is over
-        now_tick = tick_of(newest_pose) if newest_pose is not None else None
+        now_tick = tick_of(newest_pose[0]) if newest_pose is not None else None
         if done or now_tick is None or now_tick < args.at_tick:
             time.sleep(0.001)
             continue
+        assert newest_pose is not None  # now_tick came from it
         if kind in ("future2", "near"):
             offsets = (10**6, 10**6 + 1) if kind == "future2" else (1, 2)
             for offset in offsets:
-                put(f"swarm/{run}/robot/*/pose", moved(newest_pose, offset), tag_of[newest_pose])
+                put(f"swarm/{run}/robot/*/pose", moved(newest_pose[0], offset), newest_pose[1])
                 report["sent"] += 1
             report["at_tick"], done = now_tick, True
         elif kind == "walk":
             for offset in range(1, 41):
-                put(pose_key(run, robot), moved(newest_pose, offset), tag_of[newest_pose])
+                put(pose_key(run, robot), moved(newest_pose[0], offset), newest_pose[1])
                 report["sent"] += 1
             report["at_tick"], done = now_tick, True
         elif kind == "replay" and newest_msg is not None:
             last_tick = args.at_tick + args.ticks - 1  # only messages of ticks at_tick ... last_tick:
             # a starved attacker must not replay what its ring still holds once the run is over
-            for message in queued_msgs:  # in order: each seen message of the window, put again at once
+            for message, tag in queued_msgs:  # in order: each seen message of the window, put again at once
                 msg_tick = tick_of(message)
                 if msg_tick is not None and max(replayed_tick + 1, args.at_tick) <= msg_tick <= last_tick:
-                    put(msg_key(run, robot), message, tag_of[message])  # before the next genuine one
-                    put(msg_key(run, robot), with_values(message, 1000.0), tag_of[message])
+                    put(msg_key(run, robot), message, tag)  # before the next genuine one
+                    put(msg_key(run, robot), with_values(message, 1000.0), tag)
                     replayed_tick = msg_tick
                     report["copies"] = report.get("copies", 0) + 1
                     report.setdefault("copied_ticks", []).append(msg_tick)
                     report["sent"] += 2
                     report.setdefault("at_tick", msg_tick)
             queued_msgs.clear()
-            msg_tick = tick_of(newest_msg)
+            msg_tick = tick_of(newest_msg[0])
             done = msg_tick is not None and (msg_tick >= last_tick or report.get("copies", 0) >= args.ticks)
         elif kind in ("flood-pose", "flood-msg"):
             source = newest_pose if kind == "flood-pose" else newest_msg
@@ -361,7 +348,7 @@ def attack(args: argparse.Namespace) -> dict:
                 continue
             if source is None:
                 continue
-            forged, tag = moved(source, 1), tag_of[source]
+            forged, tag = moved(source[0], 1), source[1]
             while time.monotonic() >= next_s and report["sent"] < args.most:  # paced: catches up
                 put(key, forged, tag)
                 report["sent"] += 1
