@@ -48,7 +48,9 @@ from swarm.core.safety import SafetyParams, body_distance_m, with_engine_margin
 START_KINDS = ("uniform", "two-cluster", "strip", "ring")
 GRAPHS = ("complete", "cycle", "line", "disk")
 VARIANTS = (("mec_flood", True), ("pack_flood", True), ("mec_flood", False))
-VARIANT_NAMES = {"mec_flood:on": VARIANTS[0], "pack_flood:on": VARIANTS[1], "mec_flood:off": VARIANTS[2]}
+VARIANT_NAMES = {
+    f"{controller}:{'on' if filtered else 'off'}": (controller, filtered) for controller, filtered in VARIANTS
+}
 RUN_TIMEOUT_S = 3600
 
 

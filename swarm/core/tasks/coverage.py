@@ -284,9 +284,10 @@ Lloyd at full speed stopped at 1.32-1.33 H_ref with 48 points a side (23 a robot
 
 
 def sweep_grid_per_axis(count: int) -> int:
-    """``max(48, ceil(sqrt(QUADRATURE_POINTS_PER_ROBOT N)))``: 48 (the default) up to N = 23, 71 at 50,
-    100 at 100."""
-    return max(48, math.ceil(math.sqrt(QUADRATURE_POINTS_PER_ROBOT * count)))
+    """``max(48, ceil(sqrt(QUADRATURE_POINTS_PER_ROBOT N)))``: the section's default (48) up to N = 23,
+    49 at 24, 71 at 50, 100 at 100."""
+    default = CoverageSection.model_fields["grid_per_axis"].default
+    return max(default, math.ceil(math.sqrt(QUADRATURE_POINTS_PER_ROBOT * count)))
 
 
 def sweep_section(count: int) -> CoverageSection:
