@@ -53,6 +53,26 @@ def test_capt_assignment_is_the_brute_force_optimum(seed):
     assert squares == pytest.approx(best_squares, rel=1e-12, abs=1e-12)
 
 
+@pytest.mark.parametrize("seed", range(40))
+def test_a_subsets_bottleneck_as_the_search_start_gives_the_brute_force_optimum(seed):
+    """``at_least_m``, the bottleneck of a subset (as ``capt_flood`` passes that of the robots it knew
+    before), must not change the assignment; a hint of 0 or of the answer itself neither."""
+    rng = np.random.default_rng(500 + seed)
+    count = int(rng.integers(1, 7))
+    positions = rng.uniform(-2, 2, (count, 2))
+    slots = rng.uniform(-2, 2, (count + int(rng.integers(0, 2)), 2))
+    if seed % 4 == 0:  # ties: integer grid points
+        positions = rng.integers(-2, 3, (count, 2)).astype(float)
+        slots = rng.integers(-2, 3, (len(slots), 2)).astype(float)
+    subset = rng.permutation(count)[: int(rng.integers(0, count + 1))]
+    hints = [0.0, _brute(positions[subset], slots)[0] if len(subset) else 0.0, _brute(positions, slots)[0]]
+    best_bottleneck, best_squares = _brute(positions, slots)
+    for hint in hints:
+        bottleneck, squares = _cost(positions, slots, formation.capt_assignment(positions, slots, hint))
+        assert bottleneck == best_bottleneck
+        assert squares == pytest.approx(best_squares, rel=1e-12, abs=1e-12)
+
+
 def test_bottleneck_prefers_the_least_largest_distance_over_the_least_sum():
     # sum of squares alone takes 0->0, 1->1 (1 + 9 = 10, largest 3); the bottleneck takes 0->1,
     # 1->0 (largest sqrt(8) = 2.83, sum 8 + 8 = 16 > 10? no: checked below by the numbers)

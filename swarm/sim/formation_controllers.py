@@ -23,7 +23,14 @@ import numpy as np
 
 from swarm.core.experts import drive_toward_velocity
 from swarm.core.robot import RobotParams
-from swarm.core.tasks.formation import FormationSection, capt_assignment, placed_slots, sync_ratio
+from swarm.core.tasks.formation import (
+    FormationSection,
+    assignment_of_distances,
+    capt_assignment,
+    distances,
+    placed_slots,
+    sync_ratio,
+)
 from swarm.sim.formation_gnn import FormationGnnWeights, local_command, steering_features, to_world
 from swarm.sim.links import Links, heard_slots
 
@@ -95,6 +102,9 @@ class CaptFlood:
         self._targets: np.ndarray | None = None  # (B, N, 2)
         self._sync: np.ndarray | None = None  # (B, N)
         self._known_fraction: np.ndarray | None = None  # (B, N)
+        self._bottleneck: np.ndarray | None = None  # (B, N) of the last assignment (its known set's)
+        self._own_starts: np.ndarray | None = None  # (B, N, 2) every robot's own start
+        self._start_slot_m = np.zeros((0, 0, 0))  # (B, N, N) their distances to the slots
 
     def merge(self, poses: np.ndarray, inbox: np.ndarray, heard: Links) -> np.ndarray:
         """``(B, N, N, 3)``: robot i's knowledge of tick k, its own of k-1 (``inbox[:, i]``, or its own
@@ -123,12 +133,27 @@ class CaptFlood:
             self._targets = np.zeros((batch, count, 2))
             self._sync = np.zeros((batch, count))
             self._known_fraction = np.zeros((batch, count))
+            self._bottleneck = np.zeros((batch, count))
         assert self._targets is not None and self._sync is not None and self._known_fraction is not None
+        assert self._bottleneck is not None
+        fixed = not self.section.translation_free  # a known subset's bottleneck bounds the set's below
+        # Every known start is a bitwise copy of its robot's own (memory[b, j, j]), so with fixed slots
+        # the distances of a known set are rows of one (N, N) matrix per start, kept while they hold.
+        everyone = np.arange(count)
+        own_starts = memory[:, everyone, everyone, 1:]
+        if fixed and (self._own_starts is None or not np.array_equal(own_starts, self._own_starts)):
+            self._own_starts = own_starts.copy()
+            self._start_slot_m = np.stack([distances(starts, self.slots) for starts in own_starts])
         for b, i in zip(*np.nonzero(np.any(known != self._known, axis=-1)), strict=True):
             members = np.flatnonzero(known[b, i])
             starts = memory[b, i, members, 1:]
             slots = placed_slots(self.section, starts, self.slots)
-            assigned = slots[capt_assignment(starts, slots)]
+            if fixed:
+                chosen = assignment_of_distances(self._start_slot_m[b, members], self._bottleneck[b, i])
+            else:
+                chosen = capt_assignment(starts, slots)
+            assigned = slots[chosen]
+            self._bottleneck[b, i] = np.sqrt(((starts - assigned) ** 2).sum(-1)).max()
             own = np.searchsorted(members, i)
             self._targets[b, i] = assigned[own]
             self._sync[b, i] = sync_ratio(starts, assigned, own)

@@ -160,20 +160,36 @@ def _feasible(allowed: np.ndarray) -> bool:
     return bool(cost[rows, cols].sum() == 0.0)
 
 
-def capt_assignment(positions: np.ndarray, slots: np.ndarray) -> np.ndarray:
+def capt_assignment(positions: np.ndarray, slots: np.ndarray, at_least_m: float | None = None) -> np.ndarray:
     """``(K,)`` slot index of each of K <= M positions: least bottleneck (largest distance), ties by
     least sum of squared distances (CAPT). Bottleneck by bisection over the sorted distinct distances
     (each a perfect-matching test, ``scipy.optimize.linear_sum_assignment`` on 0/1 costs), then the
-    least sum of squares among assignments using only distances at or under it."""
+    least sum of squares among assignments using only distances at or under it.
+
+    ``at_least_m``: a known lower bound on the bottleneck (that of a subset of ``positions`` to the same
+    slots: restricting an assignment to a subset never raises its largest distance). The search then
+    starts there and gallops upward, which is what makes ``capt_flood``'s re-assignment, one more robot
+    known at a time, cheap; the result is the same with or without it."""
+    return assignment_of_distances(distances(positions, slots), at_least_m)
+
+
+def assignment_of_distances(dist: np.ndarray, at_least_m: float | None = None) -> np.ndarray:
+    """:func:`capt_assignment` of the ``(K, M)`` position-to-slot distances ``dist`` (rows of a matrix
+    computed once, as ``capt_flood`` takes those of the robots a robot knows)."""
     from scipy.optimize import linear_sum_assignment
 
-    dist = distances(positions, slots)
     if dist.shape[0] > dist.shape[1]:
         raise ValueError(f"more robots ({dist.shape[0]}) than slots ({dist.shape[1]})")
     if dist.shape[0] == 0:
         return np.zeros(0, dtype=np.int64)
     levels = np.unique(dist)
     low, high = 0, len(levels) - 1  # levels[high] is always feasible
+    if at_least_m is not None:
+        low = min(int(np.searchsorted(levels, at_least_m)), high)  # levels[:low] are all infeasible
+        probe, step = low, 1
+        while probe < high and not _feasible(dist <= levels[probe]):
+            low, probe, step = probe + 1, min(probe + step, high), 2 * step
+        high = probe
     while low < high:
         middle = (low + high) // 2
         if _feasible(dist <= levels[middle]):
