@@ -32,7 +32,7 @@ from swarm.core.tasks.formation import (
     sync_ratio,
 )
 from swarm.sim.formation_gnn import FormationGnnWeights, local_command, steering_features, to_world
-from swarm.sim.links import Links, heard_slots
+from swarm.sim.links import Links
 
 
 class CaptExpert:
@@ -115,10 +115,21 @@ class CaptFlood:
         fresh = memory[:, own, own, 0] == 0.0  # (B, N): does not know itself yet
         memory[:, own, own, 0] = 1.0
         memory[:, own, own, 1:] = np.where(fresh[..., None], poses[..., :2], memory[:, own, own, 1:])
-        for valid, messages in heard_slots(inbox, heard):
-            theirs = messages.reshape(batch, count, count, 3)
-            new = valid[..., None] & (theirs[..., 0] != 0.0) & (memory[..., 0] == 0.0)
-            memory[new] = theirs[new]
+        # Only robots that do not know everyone yet can learn anything (a union); once the flood is
+        # complete this is a no-op, which keeps a complete graph's tick O(N^2) instead of O(N^3).
+        rows, robots = np.nonzero(~(memory[..., 0] != 0.0).all(axis=-1))
+        if len(rows) == 0:
+            return memory
+        mine = memory[rows, robots]  # (R, N, 3), a copy
+        for slot in range(heard.index.shape[2]):  # in slot order, as heard_slots
+            sender = heard.index[rows, robots, slot]
+            valid = sender >= 0
+            if not valid.any():
+                continue
+            theirs = inbox[rows, np.where(valid, sender, 0), : 3 * count].reshape(-1, count, 3)
+            new = valid[:, None] & (theirs[..., 0] != 0.0) & (mine[..., 0] == 0.0)
+            mine[new] = theirs[new]
+        memory[rows, robots] = mine
         return memory
 
     def update_targets(self, poses: np.ndarray, inbox: np.ndarray, heard: Links) -> np.ndarray:
@@ -144,15 +155,19 @@ class CaptFlood:
         if fixed and (self._own_starts is None or not np.array_equal(own_starts, self._own_starts)):
             self._own_starts = own_starts.copy()
             self._start_slot_m = np.stack([distances(starts, self.slots) for starts in own_starts])
+        solved: dict[tuple[int, bytes], np.ndarray] = {}  # robots that know the same set agree
         for b, i in zip(*np.nonzero(np.any(known != self._known, axis=-1)), strict=True):
             members = np.flatnonzero(known[b, i])
             starts = memory[b, i, members, 1:]
             slots = placed_slots(self.section, starts, self.slots)
-            if fixed:
-                chosen = assignment_of_distances(self._start_slot_m[b, members], self._bottleneck[b, i])
-            else:
-                chosen = capt_assignment(starts, slots)
-            assigned = slots[chosen]
+            key = (int(b), known[b, i].tobytes())
+            if key not in solved:
+                if fixed:
+                    hint = self._bottleneck[b, i]
+                    solved[key] = assignment_of_distances(self._start_slot_m[b, members], hint)
+                else:
+                    solved[key] = capt_assignment(starts, slots)
+            assigned = slots[solved[key]]
             self._bottleneck[b, i] = np.sqrt(((starts - assigned) ** 2).sum(-1)).max()
             own = np.searchsorted(members, i)
             self._targets[b, i] = assigned[own]
