@@ -146,10 +146,13 @@ def locational_cost(positions: np.ndarray, points: np.ndarray, weights: np.ndarr
     positions = np.asarray(positions, dtype=np.float64)
     flat = positions.reshape(-1, *positions.shape[-2:])
     cost = np.empty(len(flat))
+    point_x, point_y = points[None, :, 0], points[None, :, 1]
     for start in range(0, len(flat), FRAMES_PER_CHUNK):
         chunk = flat[start : start + FRAMES_PER_CHUNK]
-        delta = points[None, :, None, :] - chunk[:, None, :, :]  # (F, G, N, 2)
-        nearest = (delta * delta).sum(-1).min(axis=-1)  # (F, G)
+        nearest = np.full((len(chunk), len(points)), np.inf)  # (F, G): min over robots, one at a time
+        for robot in range(chunk.shape[1]):
+            dx, dy = point_x - chunk[:, robot, 0:1], point_y - chunk[:, robot, 1:2]
+            np.minimum(nearest, dx * dx + dy * dy, out=nearest)
         cost[start : start + len(chunk)] = nearest @ weights
     return cost.reshape(positions.shape[:-2])
 
