@@ -147,11 +147,11 @@ class CaptFlood:
             self._bottleneck = np.zeros((batch, count))
         assert self._targets is not None and self._sync is not None and self._known_fraction is not None
         assert self._bottleneck is not None
-        fixed = not self.section.translation_free  # a known subset's bottleneck bounds the set's below
         # Every known start is a bitwise copy of its robot's own (memory[b, j, j]), so with fixed slots
         # the distances of a known set are rows of one (N, N) matrix per start, kept while they hold.
         everyone = np.arange(count)
         own_starts = memory[:, everyone, everyone, 1:]
+        fixed = not self.section.translation_free
         if fixed and (self._own_starts is None or not np.array_equal(own_starts, self._own_starts)):
             self._own_starts = own_starts.copy()
             self._start_slot_m = np.stack([distances(starts, self.slots) for starts in own_starts])
@@ -159,15 +159,10 @@ class CaptFlood:
         for b, i in zip(*np.nonzero(np.any(known != self._known, axis=-1)), strict=True):
             members = np.flatnonzero(known[b, i])
             starts = memory[b, i, members, 1:]
-            slots = placed_slots(self.section, starts, self.slots)
             key = (int(b), known[b, i].tobytes())
             if key not in solved:
-                if fixed:
-                    hint = self._bottleneck[b, i]
-                    solved[key] = assignment_of_distances(self._start_slot_m[b, members], hint)
-                else:
-                    solved[key] = capt_assignment(starts, slots)
-            assigned = slots[solved[key]]
+                solved[key] = self.assign(int(b), members, starts, self._bottleneck[b, i])
+            assigned = solved[key]
             self._bottleneck[b, i] = np.sqrt(((starts - assigned) ** 2).sum(-1)).max()
             own = np.searchsorted(members, i)
             self._targets[b, i] = assigned[own]
@@ -175,6 +170,15 @@ class CaptFlood:
             self._known_fraction[b, i] = len(members) / count
             self._known[b, i] = known[b, i]
         return memory
+
+    def assign(self, b: int, members: np.ndarray, starts: np.ndarray, at_least_m: float) -> np.ndarray:
+        """``(K, 2)``: the slots of the K known robots ``members`` (starts ``starts``) in environment
+        ``b``: their CAPT assignment. ``at_least_m``: the bottleneck of a subset they knew before (a
+        lower bound, :func:`capt_assignment`; unused for a translation-free formation)."""
+        if self.section.translation_free:
+            slots = placed_slots(self.section, starts, self.slots)
+            return slots[capt_assignment(starts, slots)]
+        return self.slots[assignment_of_distances(self._start_slot_m[b, members], at_least_m)]
 
     def act(
         self, poses: np.ndarray, points: np.ndarray, inbox: np.ndarray, heard: Links
