@@ -32,7 +32,7 @@ from swarm.core.tasks.formation import (
     sync_ratio,
 )
 from swarm.sim.formation_gnn import FormationGnnWeights, local_command, steering_features, to_world
-from swarm.sim.links import Links
+from swarm.sim.links import Links, heard_slots
 
 
 class CaptExpert:
@@ -121,12 +121,8 @@ class CaptFlood:
         if len(rows) == 0:
             return memory
         mine = memory[rows, robots]  # (R, N, 3), a copy
-        for slot in range(heard.index.shape[2]):  # in slot order, as heard_slots
-            sender = heard.index[rows, robots, slot]
-            valid = sender >= 0
-            if not valid.any():
-                continue
-            theirs = inbox[rows, np.where(valid, sender, 0), : 3 * count].reshape(-1, count, 3)
+        for valid, messages in heard_slots(inbox, heard, only=(rows, robots)):
+            theirs = messages.reshape(-1, count, 3)
             new = valid[:, None] & (theirs[..., 0] != 0.0) & (mine[..., 0] == 0.0)
             mine[new] = theirs[new]
         memory[rows, robots] = mine

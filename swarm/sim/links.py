@@ -66,13 +66,14 @@ class Links:
         return Links(self.index[environments], self.weight[environments], dense)
 
 
-def heard_slots(inbox: np.ndarray, heard: Links):
+def heard_slots(inbox: np.ndarray, heard: Links, only: tuple[np.ndarray, np.ndarray] | None = None):
     """Per neighbour slot, in slot order: ``(valid (B, N), messages (B, N, D))``, the message each robot
     heard in that slot (``inbox[b, heard.index[b, i, slot]]``; rows without a sender hold the message of
-    column 0 and are not ``valid``). Slots nobody heard in are skipped."""
-    envs = np.arange(inbox.shape[0])[:, None]
+    column 0 and are not ``valid``). Slots nobody heard in are skipped. ``only``: ``(envs, robots)``
+    index arrays of R receivers; then ``valid (R,)`` and ``messages (R, D)`` for those alone."""
+    envs, robots = (np.arange(inbox.shape[0])[:, None], slice(None)) if only is None else only
     for slot in range(heard.index.shape[2]):
-        sender = heard.index[:, :, slot]  # (B, N), -1: none
-        valid = sender >= 0
+        sender = heard.index[envs, robots, slot] if only is not None else heard.index[:, :, slot]
+        valid = sender >= 0  # -1: none
         if valid.any():
             yield valid, inbox[envs, np.where(valid, sender, 0)]
