@@ -1,6 +1,6 @@
-"""The coverage task (swarm.core.tasks.coverage) and its controllers (lloyd, lloyd_local, lloyd_flood):
-the cost and the reference by hand on small cases, the cell rule on ties in both forms, decentralization
-measured from outside, and a run of the scenarios through ``swarm run``."""
+"""The coverage task (swarm.core.tasks.coverage) and its controllers (lloyd, lloyd_local, lloyd_flood,
+lloyd_predict): the cost and the reference by hand on small cases, the cell rule on ties in both
+forms, decentralization measured from outside, and a run of the scenarios through ``swarm run``."""
 
 from __future__ import annotations
 
@@ -14,9 +14,14 @@ import pytest
 from swarm.core import graphs, tasks
 from swarm.core.robot import RobotParams
 from swarm.core.tasks import coverage
-from swarm.sim.controller_kinds import ControllerArgs, batched_controller, onboard_controller
+from swarm.sim.controller_kinds import (
+    CONTROLLER_KINDS,
+    ControllerArgs,
+    batched_controller,
+    onboard_controller,
+)
 from swarm.sim.coverage_controllers import cell_sums, centroid_targets
-from swarm.sim.coverage_onboard import cell_centroid
+from swarm.sim.coverage_onboard import cell_centroid, predicted_positions
 from swarm.sim.kinematic import KinematicSim
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -117,7 +122,16 @@ def _args(kind_section, count, robot_id=0, **more):
     )
 
 
-@pytest.mark.parametrize("kind", ["lloyd_local", "lloyd_flood", "lloyd_gnn"])  # lloyd_gnn: its shipped policy
+DECENTRALIZED_KINDS = [  # every coverage kind a robot runs on board (lloyd_gnn: its shipped policy)
+    name for name, kind in CONTROLLER_KINDS.items() if kind.task == "coverage" and not kind.central
+]
+
+
+def test_every_decentralized_coverage_kind_is_checked():
+    assert {"lloyd_local", "lloyd_flood", "lloyd_predict", "lloyd_gnn"} <= set(DECENTRALIZED_KINDS)
+
+
+@pytest.mark.parametrize("kind", DECENTRALIZED_KINDS)
 def test_a_robot_hears_of_a_robot_k_hops_away_no_sooner_than_k_ticks(kind):
     """Decentralization from outside: on a line of 8, moving robot 7's start changes nothing of robot
     0's commands for the first 7 ticks (7 hops), and does change the swarm's later. Robot 7 sits next
@@ -163,6 +177,26 @@ def test_the_flood_knows_everyone_after_the_diameter_and_ages_count_hops():
     table = sent[0].reshape(count, 3)
     assert np.array_equal(table[:, 0], 1.0 + np.arange(count))  # robot j is j hops from robot 0
     assert np.array_equal(table[:, 1:], start[:, :2])
+
+
+def test_lloyd_predict_places_a_robot_where_its_target_takes_it_in_its_entrys_age():
+    """By hand, a step of 0.1 m a tick: an entry 3 ticks old (age + 1 = 4) whose target is 1 m along x
+    is 0.3 m along; one whose target is 0.2 m away has reached it; one of this tick, one with its
+    target where it is and an unknown one stay where they were sent."""
+    table = np.array(
+        [
+            [4.0, 1.0, 2.0, 2.0, 2.0],  # 3 ticks old, target 1 m along +x
+            [4.0, 0.0, 0.0, 0.0, -0.2],  # 3 ticks old, target 0.2 m along -y: reached
+            [1.0, 5.0, 5.0, 9.0, 9.0],  # this tick's
+            [9.0, -1.0, 1.0, -1.0, 1.0],  # 8 ticks old, already at its target
+            [0.0, 3.0, 4.0, 0.0, 0.0],  # unknown
+            [2.0, 0.0, 0.0, 3.0, 4.0],  # 1 tick old, target 5 m along (3, 4) / 5
+        ]
+    )
+    expected = [[1.3, 2.0], [0.0, -0.2], [5.0, 5.0], [-1.0, 1.0], [3.0, 4.0], [0.06, 0.08]]
+    np.testing.assert_allclose(predicted_positions(table, 0.1), expected, rtol=0, atol=1e-15)
+    batched = predicted_positions(np.stack([table, table[::-1]]), 0.1)  # any leading shape
+    np.testing.assert_allclose(batched, [expected, expected[::-1]], rtol=0, atol=1e-15)
 
 
 @pytest.mark.slow

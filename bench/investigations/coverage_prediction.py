@@ -7,11 +7,12 @@ complete graph of 100 (positions one tick old) it takes 22 s against the expert'
 whole way in one tick near the end, so a neighbour's position one tick old is where it *was*, and two
 robots both move into the gap the other is leaving.
 
-``predict`` is ``lloyd_flood`` with one more thing in each entry of the flooded table: the sender's
-target (its centroid) when it sent its position. A robot places every robot it knows at the point it
-would have reached driving straight to that target at ``v_max`` for the entry's age (the kinematic
-engine's axle does nearly that), and takes its cell among those points. Same starts and judging as
-the coverage sweep (``swarm.scenarios.task_sweep``):
+``lloyd_predict`` (``swarm.sim.coverage_controllers.LloydPredict``; this investigation's ``predict``,
+made a controller kind) is ``lloyd_flood`` with one more thing in each entry of the flooded table: the
+sender's target (its centroid) when it sent its position. A robot places every robot it knows at the
+point it would have reached driving straight to that target at ``v_max`` for the entry's age (the
+kinematic engine's axle does nearly that), and takes its cell among those points. Same starts and
+judging as the coverage sweep (``swarm.scenarios.task_sweep``):
 
     python bench/investigations/coverage_prediction.py --out bench/results/coverage_prediction.md
 """
@@ -25,48 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from swarm.core.robot import RobotParams
 from swarm.scenarios.task_sweep import TaskSweepConfig, cell_starts, run_cell
-from swarm.sim.coverage_controllers import LloydFlood, centroid_targets
-from swarm.sim.links import heard_slots
-
-FIELDS = 5  # age + 1 (0: unknown), x, y, target x, target y
-
-
-class LloydPredict(LloydFlood):
-    """``lloyd_flood`` whose table also carries each robot's target; positions are extrapolated."""
-
-    def __init__(self, *args, **kwargs):
-        super().__init__(*args, **kwargs)
-        self.message_dim = FIELDS * self.count
-
-    def act(self, poses, points, inbox, heard):
-        batch, count = poses.shape[:2]
-        memory = inbox[:, :count].reshape(batch, count, count, FIELDS).copy()
-        memory[..., 0] = np.where(memory[..., 0] > 0.0, memory[..., 0] + 1.0, 0.0)
-        own = np.arange(count)
-        memory[:, own, own, 0] = 1.0
-        memory[:, own, own, 1:3] = poses[..., :2]
-        for valid, messages in heard_slots(inbox, heard):
-            theirs = messages.reshape(batch, count, count, FIELDS)
-            age = np.where(theirs[..., 0] > 0.0, theirs[..., 0] + 1.0, 0.0)
-            fresher = valid[..., None] & (age > 0.0) & ((memory[..., 0] == 0.0) | (age < memory[..., 0]))
-            memory[fresher, 0] = age[fresher]
-            memory[fresher, 1:] = theirs[fresher, 1:]
-        # where each known robot is now if it drove straight at its target for its entry's age
-        ticks_old = np.maximum(memory[..., 0] - 1.0, 0.0)
-        toward = memory[..., 3:5] - memory[..., 1:3]
-        gap = np.linalg.norm(toward, axis=-1)
-        reach = np.minimum(gap, ticks_old * self.robot.v_max_mps * self.control_period_s)
-        scale = np.where(gap > 0.0, reach / np.where(gap > 0.0, gap, 1.0), 0.0)
-        predicted = memory[..., 1:3] + toward * scale[..., None]
-        valid = memory[..., 0] > 0.0
-        valid[:, own, own] = False
-        sums = self.sums(poses[..., :2], predicted, valid, None)
-        self._targets = centroid_targets(sums, self.fallback)
-        self._mass = sums[..., 0]
-        memory[:, own, own, 3:5] = self._targets  # sent with the position it was computed at
-        return self.drive(poses, self._targets), memory.reshape(batch, count, FIELDS * count)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -96,16 +56,9 @@ def main(argv: list[str] | None = None) -> int:
             chunk_starts=args.starts,
         )
         starts = cell_starts(config, graph, args.count)
-        section = config.cells.section(args.count)
-        robot = RobotParams(v_max_mps=config.v_max_mps)
-        for name in ("lloyd", "lloyd_flood", "predict"):
+        for name in ("lloyd", "lloyd_flood", "lloyd_predict"):
             began = time.perf_counter()
-            controller = (
-                LloydPredict(robot, config.control_period_s, section, args.count)
-                if name == "predict"
-                else name
-            )
-            cell = run_cell(config, graph, args.count, controller, 0.0, starts=starts)
+            cell = run_cell(config, graph, args.count, name, 0.0, starts=starts)
             reached = np.array(
                 [s["first_within_s"] for s in cell["starts"] if s.get("first_within_s") is not None]
             )

@@ -201,6 +201,20 @@ def _onboard_lloyd_flood(args: ControllerArgs):
     )
 
 
+def _lloyd_predict(args: ControllerArgs):
+    from swarm.sim.coverage_controllers import LloydPredict
+
+    return LloydPredict(args.robot, args.control_period_s, _coverage(args), args.robot_count, args.reverse)
+
+
+def _onboard_lloyd_predict(args: ControllerArgs):
+    from swarm.sim.coverage_onboard import OnboardLloydPredict
+
+    return OnboardLloydPredict(
+        args.robot, args.control_period_s, _coverage(args), args.robot_count, args.robot_id, args.reverse
+    )
+
+
 def _coverage_weights(args: ControllerArgs):
     from swarm.sim.coverage_gnn import DEFAULT_MODEL_NAME, CoverageGnnWeights
 
@@ -349,6 +363,15 @@ CONTROLLER_KINDS: dict[str, ControllerKind] = {
             "coverage: flood every robot's freshest position, Lloyd over everyone known",
             _lloyd_flood,
             _onboard_lloyd_flood,
+            ("reverse",),
+            task="coverage",
+        ),
+        ControllerKind(
+            "lloyd_predict",
+            "coverage: lloyd_flood with each robot's target flooded too, known robots placed where their "
+            "targets take them",
+            _lloyd_predict,
+            _onboard_lloyd_predict,
             ("reverse",),
             task="coverage",
         ),

@@ -17,6 +17,13 @@ step of Lloyd's map). The kinds differ in what the target is computed from:
   least age, the robot's own memory first on ties), and takes the centroid of its cell among every robot
   it knows. After graph-diameter ticks it knows everyone, a robot h hops away as of h ticks ago; its
   Voronoi neighbours are near it and mostly few hops away, so its cell is nearly the expert's.
+- ``lloyd_predict`` (:class:`LloydPredict`, decentralized): ``lloyd_flood`` whose table also carries each
+  robot's target (message ``N x (age + 1, x, y, target x, target y)``: the target it computed at that
+  position). A robot places every robot it knows where it would be after driving straight toward that
+  target at ``v_max`` for the entry's age (:func:`swarm.sim.coverage_onboard.predicted_positions`), and
+  takes its cell among those points. A position one tick old is where a neighbour *was*; near the end
+  every robot moves the whole way to its centroid in one tick, so on dense graphs the prediction is
+  what closes the gap to the expert (``bench/results/coverage_prediction.md``).
 
 The cells of the two decentralized kinds are computed by one numba kernel (:func:`cell_sums`); the
 robots' on-board forms (``swarm.sim.coverage_onboard``) compute them with numpy masks, to rounding.
@@ -34,6 +41,7 @@ from swarm.core.experts import drive_toward_velocity
 from swarm.core.robot import RobotParams
 from swarm.core.tasks.coverage import CoverageSection, density_centroid
 from swarm.sim.coverage_gnn import CoverageGnnWeights, coverage_features, region_scale_m
+from swarm.sim.coverage_onboard import predicted_positions
 from swarm.sim.links import Links, heard_slots
 from swarm.sim.steering_mlp import local_command, to_world
 
@@ -185,22 +193,25 @@ class LloydFlood(_Coverage):
     ):
         super().__init__(robot, control_period_s, section, reverse)
         self.count = int(robot_count)
-        self.message_dim = 3 * self.count
+        self.message_dim = self.fields * self.count
         self._targets = np.zeros((0, self.count, 2))
         self._mass = np.zeros((0, self.count))
 
+    fields = 3
+    """Floats an entry of the table: ``age + 1, x, y``."""
+
     def merge(self, poses: np.ndarray, inbox: np.ndarray, heard: Links) -> np.ndarray:
-        """``(B, N, N, 3)`` robot i's table of tick k: its own of k-1 (``inbox[:, i]``) one hop older,
-        its own position fresh, and each heard neighbour's entries one hop older where strictly fresher
-        (slot order; the robot's own table first)."""
-        batch, count = poses.shape[:2]
-        memory = inbox[:, :count].reshape(batch, count, count, 3).copy()
+        """``(B, N, N, fields)`` robot i's table of tick k: its own of k-1 (``inbox[:, i]``) one hop
+        older, its own position fresh, and each heard neighbour's entries one hop older where strictly
+        fresher (slot order; the robot's own table first)."""
+        batch, count, fields = poses.shape[0], poses.shape[1], self.fields
+        memory = inbox[:, :count].reshape(batch, count, count, fields).copy()
         memory[..., 0] = np.where(memory[..., 0] > 0.0, memory[..., 0] + 1.0, 0.0)
         own = np.arange(count)
         memory[:, own, own, 0] = 1.0
-        memory[:, own, own, 1:] = poses[..., :2]
+        memory[:, own, own, 1:3] = poses[..., :2]
         for valid, messages in heard_slots(inbox, heard):
-            theirs = messages.reshape(batch, count, count, 3)
+            theirs = messages.reshape(batch, count, count, fields)
             age = np.where(theirs[..., 0] > 0.0, theirs[..., 0] + 1.0, 0.0)
             fresher = valid[..., None] & (age > 0.0) & ((memory[..., 0] == 0.0) | (age < memory[..., 0]))
             memory[fresher, 0] = age[fresher]
@@ -225,6 +236,29 @@ class LloydFlood(_Coverage):
         batch, count = poses.shape[:2]
         memory = self.update_targets(poses, inbox, heard)
         return self.drive(poses, self._targets), memory.reshape(batch, count, 3 * count)
+
+
+class LloydPredict(LloydFlood):
+    """``lloyd_predict``: ``lloyd_flood`` with each robot's target flooded beside its position, and the
+    known robots placed where their targets take them in their entries' age (module docstring)."""
+
+    fields = 5
+    """Floats an entry of the table: ``age + 1, x, y, target x, target y``."""
+
+    def act(
+        self, poses: np.ndarray, points: np.ndarray, inbox: np.ndarray, heard: Links
+    ) -> tuple[np.ndarray, np.ndarray]:
+        batch, count = poses.shape[:2]
+        memory = self.merge(poses, inbox, heard)
+        valid = memory[..., 0] > 0.0
+        own = np.arange(count)
+        valid[:, own, own] = False  # itself is `own`
+        step_m = self.robot.v_max_mps * self.control_period_s
+        sums = self.sums(poses[..., :2], predicted_positions(memory, step_m), valid, None)
+        self._targets = centroid_targets(sums, self.fallback)
+        self._mass = sums[..., 0]
+        memory[:, own, own, 3:5] = self._targets  # sent beside the position it was computed at
+        return self.drive(poses, self._targets), memory.reshape(batch, count, self.fields * count)
 
 
 class LloydGnn(LloydFlood):

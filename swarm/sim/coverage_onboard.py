@@ -1,4 +1,4 @@
-"""The coverage baselines ``lloyd_local`` and ``lloyd_flood`` on board one robot (numpy only).
+"""The coverage baselines ``lloyd_local``, ``lloyd_flood`` and ``lloyd_predict`` on one robot (numpy only).
 
 The same rules as ``swarm.sim.coverage_controllers`` for one robot: its cell is the set of quadrature
 points no farther from it than from any robot it knows of (and within ``cell_radius_m`` when set), a
@@ -89,18 +89,35 @@ class OnboardLloydLocal(_OnboardCoverage):
 
 
 def merge_freshest(table: np.ndarray, neighbour_messages: np.ndarray) -> None:
-    """Unite heard tables (each ``N x (age + 1, x, y)``, 0: unknown) into ``table`` in place, one hop
-    older: an entry replaces the robot's own where strictly fresher, in message order."""
-    count = len(table)
-    for message in np.asarray(neighbour_messages, dtype=np.float64).reshape(-1, count, 3):
+    """Unite heard tables (each ``N x (age + 1, x, y, ...)``, 0: unknown) into ``table (N, F)`` in place,
+    one hop older: an entry replaces the robot's own where strictly fresher, in message order."""
+    count, fields = table.shape
+    for message in np.asarray(neighbour_messages, dtype=np.float64).reshape(-1, count, fields):
         age = np.where(message[:, 0] > 0.0, message[:, 0] + 1.0, 0.0)
         fresher = (age > 0.0) & ((table[:, 0] == 0.0) | (age < table[:, 0]))
         table[fresher, 0] = age[fresher]
         table[fresher, 1:] = message[fresher, 1:]
 
 
+def predicted_positions(table: np.ndarray, step_m: float) -> np.ndarray:
+    """``(..., 2)`` where each entry of a ``lloyd_predict`` table ``(..., 5)`` (``age + 1, x, y,
+    target x, target y``) places its robot: ``p + min(|c - p|, (age - 1) step_m) (c - p) / |c - p|``,
+    the point reached driving from ``p`` straight at its target ``c`` at ``step_m`` a tick for the
+    entry's age in ticks (``p`` itself when ``c = p`` or the entry is of this tick or unknown)."""
+    ticks_old = np.maximum(table[..., 0] - 1.0, 0.0)
+    toward = table[..., 3:5] - table[..., 1:3]
+    gap_m = np.sqrt((toward * toward).sum(-1))
+    reach_m = np.minimum(gap_m, ticks_old * step_m)
+    moving = gap_m > 0.0
+    scale = np.where(moving, reach_m / np.where(moving, gap_m, 1.0), 0.0)
+    return table[..., 1:3] + toward * scale[..., None]
+
+
 class OnboardLloydFlood(_OnboardCoverage):
     """``lloyd_flood`` for robot ``robot_id``: ``act_one(pose (3,), neighbour_messages (m, 3N), weights)``."""
+
+    fields = 3
+    """Floats an entry of the table: ``age + 1, x, y``."""
 
     def __init__(
         self,
@@ -114,8 +131,8 @@ class OnboardLloydFlood(_OnboardCoverage):
         super().__init__(robot, control_period_s, section, reverse)
         self.count = int(robot_count)
         self.robot_id = int(robot_id)
-        self.message_dim = 3 * self.count
-        self._table = np.zeros((self.count, 3))  # what it sent last tick
+        self.message_dim = self.fields * self.count
+        self._table = np.zeros((self.count, self.fields))  # what it sent last tick
         self._target = np.zeros(2)
         self._mass = 0.0
 
@@ -125,7 +142,7 @@ class OnboardLloydFlood(_OnboardCoverage):
         included). Returns the table it sends."""
         table = self._table.copy()
         table[:, 0] = np.where(table[:, 0] > 0.0, table[:, 0] + 1.0, 0.0)
-        table[self.robot_id] = (1.0, pose[0], pose[1])
+        table[self.robot_id, :3] = (1.0, pose[0], pose[1])
         merge_freshest(table, neighbour_messages)
         others = table[:, 0] > 0.0
         others[self.robot_id] = False
@@ -140,4 +157,29 @@ class OnboardLloydFlood(_OnboardCoverage):
     ) -> tuple[np.ndarray, np.ndarray]:
         pose = np.asarray(pose, dtype=np.float64)
         table = self.update_target(pose, neighbour_messages)
+        return self.drive(pose, self._target), table.reshape(-1).copy()
+
+
+class OnboardLloydPredict(OnboardLloydFlood):
+    """``lloyd_predict`` for robot ``robot_id``: ``act_one(pose (3,), neighbour_messages (m, 5N),
+    weights)``; its cell among the known robots' predicted positions (:func:`predicted_positions`)."""
+
+    fields = 5
+    """Floats an entry of the table: ``age + 1, x, y, target x, target y``."""
+
+    def act_one(
+        self, pose: np.ndarray, neighbour_messages: np.ndarray, weights: np.ndarray | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        pose = np.asarray(pose, dtype=np.float64)
+        table = self._table.copy()
+        table[:, 0] = np.where(table[:, 0] > 0.0, table[:, 0] + 1.0, 0.0)
+        table[self.robot_id, :3] = (1.0, pose[0], pose[1])
+        merge_freshest(table, neighbour_messages)
+        others = table[:, 0] > 0.0
+        others[self.robot_id] = False
+        step_m = self.robot.v_max_mps * self.control_period_s
+        placed = predicted_positions(table[others], step_m)
+        self._mass, self._target = cell_moments(pose[:2], placed, self.points, self.weights, self.fallback)
+        table[self.robot_id, 3:5] = self._target  # sent beside the position it was computed at
+        self._table = table
         return self.drive(pose, self._target), table.reshape(-1).copy()

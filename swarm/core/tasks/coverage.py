@@ -316,7 +316,7 @@ COVERAGE = register(
         section=CoverageSection,
         knows="its own pose, the public region and density, and what its heard neighbours sent last tick",
         experts=("lloyd",),
-        baselines=("lloyd_local", "lloyd_flood"),
+        baselines=("lloyd_local", "lloyd_flood", "lloyd_predict"),
         learned=("lloyd_gnn",),
         metric="coverage_ratio: H / H_ref, H the locational cost on the quadrature grid (m^2)",
         success="H <= (1 + tolerance) H_ref from some time to the end, held hold_s",
