@@ -235,7 +235,7 @@ class LloydFlood(_Coverage):
     ) -> tuple[np.ndarray, np.ndarray]:
         batch, count = poses.shape[:2]
         memory = self.update_targets(poses, inbox, heard)
-        return self.drive(poses, self._targets), memory.reshape(batch, count, 3 * count)
+        return self.drive(poses, self._targets), memory.reshape(batch, count, self.fields * count)
 
 
 class LloydPredict(LloydFlood):
@@ -245,10 +245,11 @@ class LloydPredict(LloydFlood):
     fields = 5
     """Floats an entry of the table: ``age + 1, x, y, target x, target y``."""
 
-    def act(
-        self, poses: np.ndarray, points: np.ndarray, inbox: np.ndarray, heard: Links
-    ) -> tuple[np.ndarray, np.ndarray]:
-        batch, count = poses.shape[:2]
+    def update_targets(self, poses: np.ndarray, inbox: np.ndarray, heard: Links) -> np.ndarray:
+        """Merge, place the known robots where their targets take them, and take every robot's cell
+        among those points: sets ``_targets`` and ``_mass`` and returns the tables ``(B, N, N, 5)``, each
+        robot's own entry carrying its new target."""
+        count = poses.shape[1]
         memory = self.merge(poses, inbox, heard)
         valid = memory[..., 0] > 0.0
         own = np.arange(count)
@@ -258,7 +259,7 @@ class LloydPredict(LloydFlood):
         self._targets = centroid_targets(sums, self.fallback)
         self._mass = sums[..., 0]
         memory[:, own, own, 3:5] = self._targets  # sent beside the position it was computed at
-        return self.drive(poses, self._targets), memory.reshape(batch, count, self.fields * count)
+        return memory
 
 
 class LloydGnn(LloydFlood):
@@ -298,4 +299,4 @@ class LloydGnn(LloydFlood):
         )
         self.last_features = features
         u_local = local_command(self.policy, features, gate, self.robot.v_max_mps)
-        return to_world(poses, u_local), memory.reshape(batch, count, 3 * count)
+        return to_world(poses, u_local), memory.reshape(batch, count, self.fields * count)
