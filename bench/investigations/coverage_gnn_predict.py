@@ -5,8 +5,10 @@ their hops). ``lloyd_predict`` floods each robot's target too and computes the c
 extrapolated by their age, which beats both on dense graphs (``docs/tasks.md``). Here the same learned
 readout (``swarm.sim.coverage_gnn``: features, MLP, DAgger imitation of the central ``lloyd`` on
 N = 4-12, ``swarm train --algo coverage``'s default settings and seed) is trained on top of
-``lloyd_predict``'s cell instead (``PredictGnn``), and all four kinds run on the coverage sweep's starts
-of the cells given (``swarm.scenarios.task_sweep``: the same starts for every kind, 60 s):
+``lloyd_predict``'s cell instead (``predict_gnn``), and on both cells (``both_gnn``: the features of
+``predict_gnn`` and the direction and gate to ``lloyd_flood``'s centroid, so that it may learn when to
+trust the prediction). Every kind runs on the coverage sweep's starts of the cells given
+(``swarm.scenarios.task_sweep``: the same starts for every kind, 60 s):
 
     python bench/investigations/coverage_gnn_predict.py --out bench/results/coverage_gnn_predict.md
 
@@ -19,16 +21,21 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 
 import swarm.learn.train.coverage as coverage_training
 from swarm.core.robot import RobotParams
+from swarm.learn.train.steering import dagger
 from swarm.scenarios.task_sweep import TaskSweepConfig, cell_starts, run_cell
-from swarm.sim.coverage_controllers import LloydGnn, LloydPredict
-from swarm.sim.coverage_gnn import CoverageGnnWeights
+from swarm.sim.coverage_controllers import LloydGnn, LloydPredict, centroid_targets
+from swarm.sim.coverage_gnn import FEATURES, CoverageGnnWeights, coverage_features
+from swarm.sim.links import Links
+from swarm.sim.steering_mlp import local_command, target_features, to_world
 
+KINDS = ("lloyd", "lloyd_flood", "lloyd_predict", "lloyd_gnn", "predict_gnn", "both_gnn")
 DEFAULT_CELLS = ("complete:24", "line:24", "cycle:50", "line:50", "random:50", "disk:50", "complete:100")
 
 
@@ -39,34 +46,97 @@ class PredictGnn(LloydGnn):
     update_targets = LloydPredict.update_targets
 
 
+class BothWeights(CoverageGnnWeights):
+    """``both_gnn``'s MLP: ``lloyd_gnn``'s features on the predicted cell, then the flooded cell's."""
+
+    FORMAT = "coverage_gnn_both/0"
+    FEATURES = (*FEATURES, "flood_dir_x", "flood_dir_y", "flood_near")
+    KIND = "both_gnn"
+
+
+class BothGnn(PredictGnn):
+    """The learned steering from both cells: ``lloyd_predict``'s (its features and gate, as
+    ``predict_gnn``) and ``lloyd_flood``'s (the direction and gate to its centroid)."""
+
+    def act(
+        self, poses: np.ndarray, points: np.ndarray, inbox: np.ndarray, heard: Links
+    ) -> tuple[np.ndarray, np.ndarray]:
+        batch, count = poses.shape[:2]
+        memory = self.update_targets(poses, inbox, heard)  # lloyd_predict's cell: _targets, _mass
+        valid = memory[..., 0] > 0.0
+        valid[:, np.arange(count), np.arange(count)] = False
+        flood_targets = centroid_targets(
+            self.sums(poses[..., :2], memory[..., 1:3], valid, None), self.fallback
+        )
+        own = np.broadcast_to(np.eye(count, dtype=bool), (batch, count, count))
+        features, gate = coverage_features(
+            poses,
+            self._targets,
+            memory,
+            own,
+            self._mass,
+            self.fallback,
+            self.scale_m,
+            self.robot,
+            self.control_period_s,
+        )
+        flood, _ = target_features(poses, flood_targets, self.robot, self.control_period_s)
+        features = np.concatenate([features, flood], axis=-1)
+        self.last_features = features
+        u_local = local_command(self.policy, features, gate, self.robot.v_max_mps)
+        return to_world(poses, u_local), memory.reshape(batch, count, self.fields * count)
+
+
+LEARNED = {"predict_gnn": (PredictGnn, CoverageGnnWeights), "both_gnn": (BothGnn, BothWeights)}
+
+
+def trained(name: str, out: Path):
+    """Train ``name`` as ``swarm train --algo coverage`` trains ``lloyd_gnn`` (its defaults and seed)."""
+    controller, weights_class = LEARNED[name]
+    coverage_training.LloydGnn = controller  # type: ignore[misc]  # what episode() and closed_loop() build
+    coverage_training.FEATURES = weights_class.FEATURES  # type: ignore[misc]  # episode()'s row width
+    config = coverage_training.make_config(overrides={"out": str(out / name)})
+    meta = {"config": asdict(config), "features": list(weights_class.FEATURES), "speed": "full"}
+    began = time.perf_counter()
+    policy = dagger(
+        config,
+        weights_class=weights_class,
+        meta=meta,
+        episode=coverage_training.episode,
+        closed_loop=coverage_training.closed_loop,
+        score="median_first_within_s",
+        references=("lloyd_flood", "lloyd"),
+        imitate_speed=False,
+    )
+    print(f"trained {policy} in {time.perf_counter() - began:.0f} s", flush=True)
+    return weights_class.load(policy)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cells", nargs="+", default=list(DEFAULT_CELLS), help="graph:N")
     parser.add_argument("--starts", type=int, default=8, help="the coverage sweep's starts per cell")
+    parser.add_argument("--kinds", nargs="+", default=list(KINDS), help=" ".join(KINDS))
     parser.add_argument("--weights", type=Path, default=Path("runs/coverage_gnn_predict"))
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
 
-    # -- train: swarm train --algo coverage's defaults, the learner on lloyd_predict's cell
-    coverage_training.LloydGnn = PredictGnn  # type: ignore[misc]  # what episode() and closed_loop() build
-    began = time.perf_counter()
-    policy = coverage_training.train(coverage_training.make_config(overrides={"out": str(args.weights)}))
-    weights = CoverageGnnWeights.load(policy)
-    print(f"trained {policy} in {time.perf_counter() - began:.0f} s", flush=True)
+    # -- train
+    weights = {name: trained(name, args.weights) for name in args.kinds if name in LEARNED}
 
-    # -- evaluate: the four kinds on the sweep's starts of every cell
+    # -- evaluate: every kind on the sweep's starts of every cell
     lines = [
-        "# Coverage: the learned steering on lloyd_predict's cell (`predict_gnn`)",
+        "# Coverage: a learned steering on lloyd_predict's cell (`predict_gnn`) and on both (`both_gnn`)",
         "",
         f"`python bench/investigations/coverage_gnn_predict.py --cells {' '.join(args.cells)} --starts"
-        f" {args.starts} --out {args.out}`: `predict_gnn` trained as `swarm train --algo coverage` trains"
-        " `lloyd_gnn` (same settings and seed; weights in"
+        f" {args.starts} --kinds {' '.join(args.kinds)} --out {args.out}`: `predict_gnn` and `both_gnn`"
+        " trained as `swarm train --algo coverage` trains `lloyd_gnn` (same settings and seed; weights in"
         f" `{args.weights}`), then every kind on the coverage sweep's first {args.starts} starts of each"
         " cell (60 s, the same starts for every kind). Time to within 1.05 H_ref (s: median over the starts"
         " that got there, how many did) and H / H_ref at the end (median).",
         "",
-        "| graph | N | `lloyd` | `lloyd_flood` | `lloyd_predict` | `lloyd_gnn` | `predict_gnn` |",
-        "|---|---|---|---|---|---|---|",
+        "| graph | N | " + " | ".join(f"`{name}`" for name in args.kinds) + " |",
+        "|---|---|" + "---|" * len(args.kinds),
     ]
     for spec in args.cells:
         graph, count_text = spec.split(":")
@@ -78,10 +148,10 @@ def main(argv: list[str] | None = None) -> int:
         section = config.cells.section(count)
         robot = RobotParams(v_max_mps=config.v_max_mps)
         row = [graph, str(count)]
-        for name in ("lloyd", "lloyd_flood", "lloyd_predict", "lloyd_gnn", "predict_gnn"):
+        for name in args.kinds:
             controller = (
-                PredictGnn(robot, config.control_period_s, section, count, weights)
-                if name == "predict_gnn"
+                LEARNED[name][0](robot, config.control_period_s, section, count, weights[name])
+                if name in LEARNED
                 else name
             )
             cell = run_cell(config, graph, count, controller, 0.0, starts=starts)
