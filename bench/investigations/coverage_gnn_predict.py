@@ -31,9 +31,8 @@ from swarm.core.robot import RobotParams
 from swarm.learn.train.steering import dagger
 from swarm.scenarios.task_sweep import TaskSweepConfig, cell_starts, run_cell
 from swarm.sim.coverage_controllers import LloydGnn, LloydPredict, centroid_targets
-from swarm.sim.coverage_gnn import FEATURES, CoverageGnnWeights, coverage_features
-from swarm.sim.links import Links
-from swarm.sim.steering_mlp import local_command, target_features, to_world
+from swarm.sim.coverage_gnn import FEATURES, CoverageGnnWeights
+from swarm.sim.steering_mlp import target_features
 
 KINDS = ("lloyd", "lloyd_flood", "lloyd_predict", "lloyd_gnn", "predict_gnn", "both_gnn")
 DEFAULT_CELLS = ("complete:24", "line:24", "cycle:50", "line:50", "random:50", "disk:50", "complete:100")
@@ -58,33 +57,16 @@ class BothGnn(PredictGnn):
     """The learned steering from both cells: ``lloyd_predict``'s (its features and gate, as
     ``predict_gnn``) and ``lloyd_flood``'s (the direction and gate to its centroid)."""
 
-    def act(
-        self, poses: np.ndarray, points: np.ndarray, inbox: np.ndarray, heard: Links
-    ) -> tuple[np.ndarray, np.ndarray]:
-        batch, count = poses.shape[:2]
-        memory = self.update_targets(poses, inbox, heard)  # lloyd_predict's cell: _targets, _mass
+    def features(self, poses: np.ndarray, memory: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        features, gate = super().features(poses, memory)  # on lloyd_predict's cell
+        count = poses.shape[1]
         valid = memory[..., 0] > 0.0
         valid[:, np.arange(count), np.arange(count)] = False
         flood_targets = centroid_targets(
             self.sums(poses[..., :2], memory[..., 1:3], valid, None), self.fallback
         )
-        own = np.broadcast_to(np.eye(count, dtype=bool), (batch, count, count))
-        features, gate = coverage_features(
-            poses,
-            self._targets,
-            memory,
-            own,
-            self._mass,
-            self.fallback,
-            self.scale_m,
-            self.robot,
-            self.control_period_s,
-        )
         flood, _ = target_features(poses, flood_targets, self.robot, self.control_period_s)
-        features = np.concatenate([features, flood], axis=-1)
-        self.last_features = features
-        u_local = local_command(self.policy, features, gate, self.robot.v_max_mps)
-        return to_world(poses, u_local), memory.reshape(batch, count, self.fields * count)
+        return np.concatenate([features, flood], axis=-1), gate
 
 
 LEARNED = {"predict_gnn": (PredictGnn, CoverageGnnWeights), "both_gnn": (BothGnn, BothWeights)}

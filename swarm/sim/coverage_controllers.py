@@ -225,10 +225,14 @@ class LloydFlood(_Coverage):
         memory = self.merge(poses, inbox, heard)
         valid = memory[..., 0] > 0.0
         valid[:, np.arange(count), np.arange(count)] = False  # itself is `own`
-        sums = self.sums(poses[..., :2], memory[..., 1:], valid, None)
+        sums = self.sums(poses[..., :2], self.known_positions(memory), valid, None)
         self._targets = centroid_targets(sums, self.fallback)
         self._mass = sums[..., 0]
         return memory
+
+    def known_positions(self, memory: np.ndarray) -> np.ndarray:
+        """``(B, N, N, 2)`` where each robot places the robots in its table: where they were sent from."""
+        return memory[..., 1:3]
 
     def act(
         self, poses: np.ndarray, points: np.ndarray, inbox: np.ndarray, heard: Links
@@ -245,20 +249,17 @@ class LloydPredict(LloydFlood):
     fields = 5
     """Floats an entry of the table: ``age + 1, x, y, target x, target y``."""
 
+    def known_positions(self, memory: np.ndarray) -> np.ndarray:
+        """``(B, N, N, 2)``: every entry where its target takes it in the entry's age
+        (:func:`swarm.sim.coverage_onboard.predicted_positions`)."""
+        return predicted_positions(memory, self.robot.v_max_mps * self.control_period_s)
+
     def update_targets(self, poses: np.ndarray, inbox: np.ndarray, heard: Links) -> np.ndarray:
-        """Merge, place the known robots where their targets take them, and take every robot's cell
-        among those points: sets ``_targets`` and ``_mass`` and returns the tables ``(B, N, N, 5)``, each
-        robot's own entry carrying its new target."""
-        count = poses.shape[1]
-        memory = self.merge(poses, inbox, heard)
-        valid = memory[..., 0] > 0.0
-        own = np.arange(count)
-        valid[:, own, own] = False  # itself is `own`
-        step_m = self.robot.v_max_mps * self.control_period_s
-        sums = self.sums(poses[..., :2], predicted_positions(memory, step_m), valid, None)
-        self._targets = centroid_targets(sums, self.fallback)
-        self._mass = sums[..., 0]
-        memory[:, own, own, 3:5] = self._targets  # sent beside the position it was computed at
+        """``lloyd_flood``'s, among the predicted positions; each robot's own entry carries the target it
+        computes, sent beside the position it was computed at."""
+        memory = super().update_targets(poses, inbox, heard)
+        own = np.arange(poses.shape[1])
+        memory[:, own, own, 3:5] = self._targets
         return memory
 
 
@@ -280,13 +281,12 @@ class LloydGnn(LloydFlood):
         self.scale_m = region_scale_m(self.points)
         self.last_features: np.ndarray | None = None  # (B, N, 8) of the last tick (training reads it)
 
-    def act(
-        self, poses: np.ndarray, points: np.ndarray, inbox: np.ndarray, heard: Links
-    ) -> tuple[np.ndarray, np.ndarray]:
+    def features(self, poses: np.ndarray, memory: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The readout's features ``(B, N, F)`` and gate ``(B, N)`` after :meth:`update_targets`
+        (``swarm.sim.coverage_gnn.coverage_features``)."""
         batch, count = poses.shape[:2]
-        memory = self.update_targets(poses, inbox, heard)
         own = np.broadcast_to(np.eye(count, dtype=bool), (batch, count, count))
-        features, gate = coverage_features(
+        return coverage_features(
             poses,
             self._targets,
             memory,
@@ -297,6 +297,13 @@ class LloydGnn(LloydFlood):
             self.robot,
             self.control_period_s,
         )
+
+    def act(
+        self, poses: np.ndarray, points: np.ndarray, inbox: np.ndarray, heard: Links
+    ) -> tuple[np.ndarray, np.ndarray]:
+        batch, count = poses.shape[:2]
+        memory = self.update_targets(poses, inbox, heard)
+        features, gate = self.features(poses, memory)
         self.last_features = features
         u_local = local_command(self.policy, features, gate, self.robot.v_max_mps)
         return to_world(poses, u_local), memory.reshape(batch, count, self.fields * count)

@@ -147,10 +147,15 @@ class OnboardLloydFlood(_OnboardCoverage):
         others = table[:, 0] > 0.0
         others[self.robot_id] = False
         self._mass, self._target = cell_moments(
-            pose[:2], table[others, 1:], self.points, self.weights, self.fallback
+            pose[:2], self.known_positions(table[others]), self.points, self.weights, self.fallback
         )
         self._table = table
         return table
+
+    def known_positions(self, entries: np.ndarray) -> np.ndarray:
+        """``(K, 2)`` where the robot places the robots of its table's ``entries (K, fields)``: where they
+        were sent from."""
+        return entries[:, 1:3]
 
     def act_one(
         self, pose: np.ndarray, neighbour_messages: np.ndarray, weights: np.ndarray | None = None
@@ -167,19 +172,13 @@ class OnboardLloydPredict(OnboardLloydFlood):
     fields = 5
     """Floats an entry of the table: ``age + 1, x, y, target x, target y``."""
 
-    def act_one(
-        self, pose: np.ndarray, neighbour_messages: np.ndarray, weights: np.ndarray | None = None
-    ) -> tuple[np.ndarray, np.ndarray]:
-        pose = np.asarray(pose, dtype=np.float64)
-        table = self._table.copy()
-        table[:, 0] = np.where(table[:, 0] > 0.0, table[:, 0] + 1.0, 0.0)
-        table[self.robot_id, :3] = (1.0, pose[0], pose[1])
-        merge_freshest(table, neighbour_messages)
-        others = table[:, 0] > 0.0
-        others[self.robot_id] = False
-        step_m = self.robot.v_max_mps * self.control_period_s
-        placed = predicted_positions(table[others], step_m)
-        self._mass, self._target = cell_moments(pose[:2], placed, self.points, self.weights, self.fallback)
-        table[self.robot_id, 3:5] = self._target  # sent beside the position it was computed at
-        self._table = table
-        return self.drive(pose, self._target), table.reshape(-1).copy()
+    def known_positions(self, entries: np.ndarray) -> np.ndarray:
+        """``(K, 2)``: each entry where its target takes it in its age (:func:`predicted_positions`)."""
+        return predicted_positions(entries, self.robot.v_max_mps * self.control_period_s)
+
+    def update_target(self, pose: np.ndarray, neighbour_messages: np.ndarray) -> np.ndarray:
+        """``lloyd_flood``'s, among the predicted positions; its own entry carries the target it computes,
+        sent beside the position it was computed at."""
+        table = super().update_target(pose, neighbour_messages)
+        table[self.robot_id, 3:5] = self._target
+        return table
