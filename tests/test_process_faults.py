@@ -26,7 +26,7 @@ from swarm.scenarios.results import read_trajectory
 from swarm.scenarios.scenario import load_scenario
 
 FAULTS = PROJECT_ROOT / "scenarios" / "faults"
-EVENT_KEYS = {"kind", "robot", "at_s", "tick", "wall_s", "detail"}
+EVENT_KEYS = {"kind", "robot", "at_s", "tick", "done_tick", "wall_s", "detail"}
 
 
 def fault_scenario(tmp_path, name: str, **sim: object) -> tuple:
@@ -96,6 +96,7 @@ def test_killed_hung_and_restarted_agents(tmp_path):
     for event in events:
         assert set(event) >= EVENT_KEYS
         assert round(event["at_s"] / dt) <= event["tick"] < steps  # done at the sim time, not before
+        assert event["tick"] <= event["done_tick"] <= steps + 1, event  # the ticks on disk right after
     assert [e["wall_s"] for e in events] == sorted(e["wall_s"] for e in events)
     restart = events[2]
     assert restart["pid"] != restart["old_pid"]

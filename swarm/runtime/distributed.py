@@ -27,6 +27,7 @@ import sys
 import threading
 import time
 import uuid
+from collections.abc import Callable
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -158,11 +159,13 @@ class FaultInjector:
     The sim time is the runner's view of the server's progress: when ``ticks`` lines of the
     trajectory are on disk the server is on tick ``ticks``, at ``ticks * control_period_s``; an
     action due at ``at_s`` is done at the first look at which that time is reached (the ``tick``
-    of its event says when that was). Agent PIDs come from ``logs/agent_<i>.json``, a restarted
-    agent's from the process the injector started.
+    of its event says when that was). ``done_tick`` is the ticks on disk right after it was done: a
+    runner starved of CPU between its look and the signal lets the server run on, and the fault took
+    effect at a tick in ``[tick, done_tick + 1]``. Agent PIDs come from ``logs/agent_<i>.json``, a
+    restarted agent's from the process the injector started.
     """
 
-    EVENT_KEYS = ("kind", "robot", "at_s", "tick", "wall_s", "detail")
+    EVENT_KEYS = ("kind", "robot", "at_s", "tick", "done_tick", "wall_s", "detail")
 
     def __init__(
         self,
@@ -170,8 +173,10 @@ class FaultInjector:
         out_dir: Path,
         started_s: float,
         start_agent,
+        ticks_now: Callable[[], int] | None = None,
     ):
         self.dt_s = scenario.sim.control_period_s
+        self.ticks_now = ticks_now  # the trajectory lines on disk now (None: the tick it was due at)
         self.logs = out_dir / "logs"
         self.started_s = started_s
         self.start_agent = start_agent  # (robot, restart number) -> subprocess.Popen
@@ -206,6 +211,7 @@ class FaultInjector:
             "robot": robot,
             "at_s": round(at_s, 9),
             "tick": tick,
+            "done_tick": tick if self.ticks_now is None else max(tick, self.ticks_now()),
             "wall_s": round(time.perf_counter() - self.started_s, 4),
             "detail": detail,
             **extra,
@@ -415,7 +421,7 @@ def _run_distributed(
                 f"agent_{robot}.restart{number}", command, logs / f"agent_{robot}.restart{number}.log"
             )
 
-        faults = FaultInjector(scenario, out_dir, started_s, start_agent)
+        faults = FaultInjector(scenario, out_dir, started_s, start_agent, ticks.update)
         try:
             server = supervisor.start("sim_server", server_cmd, logs / "sim_server.log")
             faults.server_pid = server.pid
