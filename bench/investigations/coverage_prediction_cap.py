@@ -1,0 +1,91 @@
+"""Does capping the age ``lloyd_predict`` extrapolates over take the better of it and ``lloyd_flood``?
+
+``lloyd_predict`` (``swarm.sim.coverage_controllers.LloydPredict``) beats ``lloyd_flood`` where flooded
+positions are a few ticks old and loses where they are tens of ticks old (cycle and line of 24-50,
+``docs/tasks.md``): a target that old is itself stale. ``capped`` extrapolates an entry toward its
+target over at most ``cap`` ticks (``cap`` 0 is ``lloyd_flood``'s cell, no cap is ``lloyd_predict``'s).
+Same starts and judging as the coverage sweep (``swarm.scenarios.task_sweep``, 60 s):
+
+    python bench/investigations/coverage_prediction_cap.py --out bench/results/coverage_prediction_cap.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from swarm.core.robot import RobotParams
+from swarm.scenarios.task_sweep import TaskSweepConfig, cell_starts, run_cell
+from swarm.sim.coverage_controllers import LloydPredict
+from swarm.sim.coverage_onboard import predicted_positions
+
+DEFAULT_CELLS = ("cycle:50", "line:50", "line:24", "random:50", "complete:100")
+
+
+class CappedPredict(LloydPredict):
+    """``lloyd_predict`` whose extrapolation runs over at most ``cap_ticks`` ticks of an entry's age."""
+
+    def __init__(self, *args, cap_ticks: int, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.cap_ticks = int(cap_ticks)
+
+    def known_positions(self, memory: np.ndarray) -> np.ndarray:
+        capped = memory.copy()
+        capped[..., 0] = np.minimum(capped[..., 0], 1.0 + self.cap_ticks)  # age + 1, 0 stays unknown
+        return predicted_positions(capped, self.robot.v_max_mps * self.control_period_s)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--cells", nargs="+", default=list(DEFAULT_CELLS), help="graph:N")
+    parser.add_argument("--caps", nargs="+", type=int, default=[2, 5, 10], help="ticks")
+    parser.add_argument("--starts", type=int, default=8, help="the coverage sweep's starts per cell")
+    parser.add_argument("--out", type=Path, required=True)
+    args = parser.parse_args(argv)
+    kinds = ["lloyd_flood", *(f"cap {cap}" for cap in args.caps), "lloyd_predict"]
+    lines = [
+        "# Coverage: lloyd_predict with its extrapolation capped at a few ticks",
+        "",
+        f"`python bench/investigations/coverage_prediction_cap.py --cells {' '.join(args.cells)} --caps"
+        f" {' '.join(map(str, args.caps))} --starts {args.starts} --out {args.out}` (the coverage sweep's"
+        f" first {args.starts} starts per cell, 60 s). Median time to within 1.05 H_ref (s; how many starts"
+        " got there) and median H / H_ref at the end.",
+        "",
+        "| cell | " + " | ".join(f"`{kind}`" if kind.startswith("lloyd") else kind for kind in kinds) + " |",
+        "|---|" + "---|" * len(kinds),
+    ]
+    for spec in args.cells:
+        graph, count_text = spec.split(":")
+        count = int(count_text)
+        config = TaskSweepConfig(
+            task="coverage", topologies=[graph], sizes=[count], seeds=args.starts, chunk_starts=args.starts
+        )
+        starts = cell_starts(config, graph, count)
+        section = config.cells.section(count)
+        robot = RobotParams(v_max_mps=config.v_max_mps)
+        row = [f"{graph} of {count}"]
+        began = time.perf_counter()
+        for kind in kinds:
+            controller = (
+                CappedPredict(robot, config.control_period_s, section, count, cap_ticks=int(kind.split()[1]))
+                if kind.startswith("cap")
+                else kind
+            )
+            cell = run_cell(config, graph, count, controller, 0.0, starts=starts)
+            reached = [s["first_within_s"] for s in cell["starts"] if s.get("first_within_s") is not None]
+            final = np.median([s["final_metric"] for s in cell["starts"]])
+            timing = f"{np.median(reached):.2f} ({len(reached)})" if reached else "- (0)"
+            row.append(f"{timing}, {final:.3f}")
+        lines.append("| " + " | ".join(row) + " |")
+        print(lines[-1], f"({time.perf_counter() - began:.0f} s)", flush=True)
+    args.out.write_text("\n".join(lines) + "\n")
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
