@@ -25,7 +25,7 @@ step of Lloyd's map). The kinds differ in what the target is computed from:
   every robot moves the whole way to its centroid in one tick, so on dense graphs the prediction is
   what closes the gap to the expert (``bench/results/coverage_prediction.md``).
 
-The cells of the two decentralized kinds are computed by one numba kernel (:func:`cell_sums`); the
+The cells of the decentralized kinds are computed by one numba kernel (:func:`cell_sums`); the
 robots' on-board forms (``swarm.sim.coverage_onboard``) compute them with numpy masks, to rounding.
 A point on a cell's boundary (equidistant) belongs to every robot it is nearest to.
 """

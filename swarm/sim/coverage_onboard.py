@@ -137,9 +137,9 @@ class OnboardLloydFlood(_OnboardCoverage):
         self._mass = 0.0
 
     def update_target(self, pose: np.ndarray, neighbour_messages: np.ndarray) -> np.ndarray:
-        """Merge the heard tables into its own and take its cell among every robot it knows: sets
-        ``_target``, ``_mass`` (its cell's) and ``_known`` (the mask of robots it knows, itself
-        included). Returns the table it sends."""
+        """Merge the heard tables into its own and take its cell among every robot it knows (placed by
+        :meth:`known_positions`): sets ``_target`` and ``_mass`` (its cell's). Returns the table it
+        sends."""
         table = self._table.copy()
         table[:, 0] = np.where(table[:, 0] > 0.0, table[:, 0] + 1.0, 0.0)
         table[self.robot_id, :3] = (1.0, pose[0], pose[1])

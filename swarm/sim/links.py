@@ -71,9 +71,10 @@ def heard_slots(inbox: np.ndarray, heard: Links, only: tuple[np.ndarray, np.ndar
     heard in that slot (``inbox[b, heard.index[b, i, slot]]``; rows without a sender hold the message of
     column 0 and are not ``valid``). Slots nobody heard in are skipped. ``only``: ``(envs, robots)``
     index arrays of R receivers; then ``valid (R,)`` and ``messages (R, D)`` for those alone."""
-    envs, robots = (np.arange(inbox.shape[0])[:, None], slice(None)) if only is None else only
+    batch, count = heard.index.shape[:2]
+    envs, robots = (np.arange(batch)[:, None], np.arange(count)[None, :]) if only is None else only
     for slot in range(heard.index.shape[2]):
-        sender = heard.index[envs, robots, slot] if only is not None else heard.index[:, :, slot]
+        sender = heard.index[envs, robots, slot]
         valid = sender >= 0  # -1: none
         if valid.any():
             yield valid, inbox[envs, np.where(valid, sender, 0)]
