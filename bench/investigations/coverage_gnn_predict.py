@@ -25,11 +25,12 @@ from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
+from coverage_prediction import sweep_cell, time_and_end  # this folder
 
 import swarm.learn.train.coverage as coverage_training
 from swarm.core.robot import RobotParams
 from swarm.learn.train.steering import dagger
-from swarm.scenarios.task_sweep import TaskSweepConfig, cell_starts, run_cell
+from swarm.scenarios.task_sweep import run_cell
 from swarm.sim.coverage_controllers import LloydGnn, LloydPredict, centroid_targets
 from swarm.sim.coverage_gnn import FEATURES, CoverageGnnWeights
 from swarm.sim.steering_mlp import target_features
@@ -123,10 +124,7 @@ def main(argv: list[str] | None = None) -> int:
     for spec in args.cells:
         graph, count_text = spec.split(":")
         count = int(count_text)
-        config = TaskSweepConfig(
-            task="coverage", topologies=[graph], sizes=[count], seeds=args.starts, chunk_starts=args.starts
-        )
-        starts = cell_starts(config, graph, count)
+        config, starts = sweep_cell(graph, count, args.starts)
         section = config.cells.section(count)
         robot = RobotParams(v_max_mps=config.v_max_mps)
         row = [graph, str(count)]
@@ -137,10 +135,7 @@ def main(argv: list[str] | None = None) -> int:
                 else name
             )
             cell = run_cell(config, graph, count, controller, 0.0, starts=starts)
-            reached = [s["first_within_s"] for s in cell["starts"] if s.get("first_within_s") is not None]
-            final = np.median([s["final_metric"] for s in cell["starts"]])
-            timing = f"{np.median(reached):.2f} s ({len(reached)})" if reached else "- (0)"
-            row.append(f"{timing}, {final:.3f}")
+            row.append(time_and_end(cell, " s"))
         lines.append("| " + " | ".join(row) + " |")
         print(lines[-1], flush=True)
     args.out.write_text("\n".join(lines) + "\n")

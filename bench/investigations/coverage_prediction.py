@@ -29,6 +29,24 @@ import numpy as np
 from swarm.scenarios.task_sweep import TaskSweepConfig, cell_starts, run_cell
 
 
+def sweep_cell(graph: str, count: int, starts: int) -> tuple[TaskSweepConfig, tuple]:
+    """The coverage sweep's settings for one cell and its first ``starts`` starts (poses, adjacency),
+    which every kind of an investigation runs from."""
+    config = TaskSweepConfig(
+        task="coverage", topologies=[graph], sizes=[count], seeds=starts, chunk_starts=starts
+    )
+    return config, cell_starts(config, graph, count)
+
+
+def time_and_end(cell: dict, unit: str = "") -> str:
+    """``"<median time to 1.05 H_ref><unit> (<starts that got there>), <median H / H_ref at the end>"``
+    of a ``run_cell`` result (``"- (0)"`` for the time when no start got there)."""
+    reached = [s["first_within_s"] for s in cell["starts"] if s.get("first_within_s") is not None]
+    final = np.median([s["final_metric"] for s in cell["starts"]])
+    timing = f"{np.median(reached):.2f}{unit} ({len(reached)})" if reached else "- (0)"
+    return f"{timing}, {final:.3f}"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--graphs", nargs="+", default=["complete", "line"])
@@ -48,14 +66,7 @@ def main(argv: list[str] | None = None) -> int:
         "|---|---|---|---|---|",
     ]
     for graph in args.graphs:
-        config = TaskSweepConfig(
-            task="coverage",
-            topologies=[graph],
-            sizes=[args.count],
-            seeds=args.starts,
-            chunk_starts=args.starts,
-        )
-        starts = cell_starts(config, graph, args.count)
+        config, starts = sweep_cell(graph, args.count, args.starts)
         for name in ("lloyd", "lloyd_flood", "lloyd_predict"):
             began = time.perf_counter()
             cell = run_cell(config, graph, args.count, name, 0.0, starts=starts)

@@ -17,9 +17,10 @@ import time
 from pathlib import Path
 
 import numpy as np
+from coverage_prediction import sweep_cell, time_and_end  # this folder
 
 from swarm.core.robot import RobotParams
-from swarm.scenarios.task_sweep import TaskSweepConfig, cell_starts, run_cell
+from swarm.scenarios.task_sweep import run_cell
 from swarm.sim.coverage_controllers import LloydPredict
 from swarm.sim.coverage_onboard import predicted_positions
 
@@ -61,10 +62,7 @@ def main(argv: list[str] | None = None) -> int:
     for spec in args.cells:
         graph, count_text = spec.split(":")
         count = int(count_text)
-        config = TaskSweepConfig(
-            task="coverage", topologies=[graph], sizes=[count], seeds=args.starts, chunk_starts=args.starts
-        )
-        starts = cell_starts(config, graph, count)
+        config, starts = sweep_cell(graph, count, args.starts)
         section = config.cells.section(count)
         robot = RobotParams(v_max_mps=config.v_max_mps)
         row = [f"{graph} of {count}"]
@@ -76,10 +74,7 @@ def main(argv: list[str] | None = None) -> int:
                 else kind
             )
             cell = run_cell(config, graph, count, controller, 0.0, starts=starts)
-            reached = [s["first_within_s"] for s in cell["starts"] if s.get("first_within_s") is not None]
-            final = np.median([s["final_metric"] for s in cell["starts"]])
-            timing = f"{np.median(reached):.2f} ({len(reached)})" if reached else "- (0)"
-            row.append(f"{timing}, {final:.3f}")
+            row.append(time_and_end(cell))
         lines.append("| " + " | ".join(row) + " |")
         print(lines[-1], f"({time.perf_counter() - began:.0f} s)", flush=True)
     args.out.write_text("\n".join(lines) + "\n")
