@@ -21,7 +21,7 @@ from swarm.sim.controller_kinds import (
     onboard_controller,
 )
 from swarm.sim.coverage_controllers import cell_sums, centroid_targets
-from swarm.sim.coverage_onboard import cell_centroid, predicted_positions
+from swarm.sim.coverage_onboard import HORIZON_TICKS, cell_centroid, predicted_positions
 from swarm.sim.kinematic import KinematicSim
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -340,3 +340,20 @@ def test_the_pybullet_runtime_covers_with_one_agent_per_robot_and_is_judged_by_t
         for i in range(12):
             record = json.loads((out / "logs" / f"agent_{i}.json").read_text())
             assert record["controller"] == "lloyd_flood" and record["neighbours"] == neighbours(i), (name, i)
+
+
+def test_lloyd_predict_extrapolates_over_at_most_its_horizon():
+    """By hand, 0.1 m a tick toward a target 5 m along +x: an entry 8 ticks old goes 0.5 m with the
+    default horizon of 5 ticks, 0.2 m with a horizon of 2, 0.8 m uncapped, and stays put with 0 (the
+    cell of ``lloyd_flood``); one 3 ticks old goes 0.3 m under any horizon of 3 or more."""
+    table = np.array([[9.0, 0.0, 0.0, 5.0, 0.0], [4.0, 0.0, 1.0, 5.0, 1.0]])
+    assert HORIZON_TICKS == 5
+    for horizon, (far_m, near_m) in {
+        5: (0.5, 0.3),
+        2: (0.2, 0.2),
+        math.inf: (0.8, 0.3),
+        0: (0.0, 0.0),
+    }.items():
+        expected = [[far_m, 0.0], [near_m, 1.0]]
+        np.testing.assert_allclose(predicted_positions(table, 0.1, horizon), expected, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(predicted_positions(table, 0.1), [[0.5, 0.0], [0.3, 1.0]], rtol=0, atol=1e-15)

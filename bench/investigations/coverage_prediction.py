@@ -12,7 +12,9 @@ made a controller kind) is ``lloyd_flood`` with one more thing in each entry of 
 sender's target (its centroid) when it sent its position. A robot places every robot it knows at the
 point it would have reached driving straight to that target at ``v_max`` for the entry's age (the
 kinematic engine's axle does nearly that), and takes its cell among those points. Same starts and
-judging as the coverage sweep (``swarm.scenarios.task_sweep``):
+judging as the coverage sweep (``swarm.scenarios.task_sweep``). The extrapolation here runs over an
+entry's whole age (``horizon_ticks`` infinite; the kind's default horizon of 5 ticks came after, from
+``coverage_prediction_cap.py``):
 
     python bench/investigations/coverage_prediction.py --out bench/results/coverage_prediction.md
 """
@@ -20,13 +22,16 @@ judging as the coverage sweep (``swarm.scenarios.task_sweep``):
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from swarm.core.robot import RobotParams
 from swarm.scenarios.task_sweep import TaskSweepConfig, cell_starts, run_cell
+from swarm.sim.coverage_controllers import LloydPredict
 
 
 def sweep_cell(graph: str, count: int, starts: int) -> tuple[TaskSweepConfig, tuple]:
@@ -67,9 +72,16 @@ def main(argv: list[str] | None = None) -> int:
     ]
     for graph in args.graphs:
         config, starts = sweep_cell(graph, args.count, args.starts)
-        for name in ("lloyd", "lloyd_flood", "lloyd_predict"):
+        uncapped = LloydPredict(
+            RobotParams(v_max_mps=config.v_max_mps),
+            config.control_period_s,
+            config.cells.section(args.count),
+            args.count,
+            horizon_ticks=math.inf,
+        )
+        for name, controller in (("lloyd", "lloyd"), ("lloyd_flood", "lloyd_flood"), ("predict", uncapped)):
             began = time.perf_counter()
-            cell = run_cell(config, graph, args.count, name, 0.0, starts=starts)
+            cell = run_cell(config, graph, args.count, controller, 0.0, starts=starts)
             reached = np.array(
                 [s["first_within_s"] for s in cell["starts"] if s.get("first_within_s") is not None]
             )

@@ -3,7 +3,8 @@
 ``lloyd_predict`` (``swarm.sim.coverage_controllers.LloydPredict``) beats ``lloyd_flood`` where flooded
 positions are a few ticks old and loses where they are tens of ticks old (cycle and line of 24-50,
 ``docs/tasks.md``): a target that old is itself stale. ``capped`` extrapolates an entry toward its
-target over at most ``cap`` ticks (``cap`` 0 is ``lloyd_flood``'s cell, no cap is ``lloyd_predict``'s).
+target over at most ``cap`` ticks (``cap`` 0 is ``lloyd_flood``'s cell; ``no cap`` extrapolates over the
+whole age, as ``lloyd_predict`` did before this measurement made 5 ticks its default ``horizon_ticks``).
 Same starts and judging as the coverage sweep (``swarm.scenarios.task_sweep``, 60 s):
 
     python bench/investigations/coverage_prediction_cap.py --out bench/results/coverage_prediction_cap.md
@@ -12,32 +13,18 @@ Same starts and judging as the coverage sweep (``swarm.scenarios.task_sweep``, 6
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from pathlib import Path
 
-import numpy as np
 from coverage_prediction import sweep_cell, time_and_end  # this folder
 
 from swarm.core.robot import RobotParams
 from swarm.scenarios.task_sweep import run_cell
 from swarm.sim.coverage_controllers import LloydPredict
-from swarm.sim.coverage_onboard import predicted_positions
 
 DEFAULT_CELLS = ("cycle:50", "line:50", "line:24", "random:50", "complete:100")
-
-
-class CappedPredict(LloydPredict):
-    """``lloyd_predict`` whose extrapolation runs over at most ``cap_ticks`` ticks of an entry's age."""
-
-    def __init__(self, *args, cap_ticks: int, **kwargs):
-        super().__init__(*args, **kwargs)
-        self.cap_ticks = int(cap_ticks)
-
-    def known_positions(self, memory: np.ndarray) -> np.ndarray:
-        capped = memory.copy()
-        capped[..., 0] = np.minimum(capped[..., 0], 1.0 + self.cap_ticks)  # age + 1, 0 stays unknown
-        return predicted_positions(capped, self.robot.v_max_mps * self.control_period_s)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -47,7 +34,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--starts", type=int, default=8, help="the coverage sweep's starts per cell")
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
-    kinds = ["lloyd_flood", *(f"cap {cap}" for cap in args.caps), "lloyd_predict"]
+    kinds = ["lloyd_flood", *(f"cap {cap}" for cap in args.caps), "no cap"]
     lines = [
         "# Coverage: lloyd_predict with its extrapolation capped at a few ticks",
         "",
@@ -68,9 +55,10 @@ def main(argv: list[str] | None = None) -> int:
         row = [f"{graph} of {count}"]
         began = time.perf_counter()
         for kind in kinds:
+            horizon_ticks = math.inf if kind == "no cap" else float(kind.split()[1])
             controller = (
-                CappedPredict(robot, config.control_period_s, section, count, cap_ticks=int(kind.split()[1]))
-                if kind.startswith("cap")
+                LloydPredict(robot, config.control_period_s, section, count, horizon_ticks=horizon_ticks)
+                if kind != "lloyd_flood"
                 else kind
             )
             cell = run_cell(config, graph, count, controller, 0.0, starts=starts)

@@ -150,6 +150,12 @@ class ControllerSpec(_Strict):
     cell_radius_m: float | None = Field(
         None, gt=0, description="lloyd_local: cut each cell to this radius (half a disk graph's radius)"
     )
+    horizon_ticks: int | None = Field(
+        None,
+        ge=0,
+        description="lloyd_predict: extrapolate a flooded position toward its target over at most this many"
+        " ticks of its age (default 5; 0: lloyd_flood's cell)",
+    )
 
     @field_validator("kind")
     @classmethod
@@ -162,7 +168,7 @@ class ControllerSpec(_Strict):
     def _options_of_kind(self) -> ControllerSpec:
         # model and gain predate the registry and stay accepted (and unused) by every kind
         takes = CONTROLLER_KINDS[self.kind].options
-        for option in ("directions", "reverse", "spacing_m", "cell_radius_m"):
+        for option in ("directions", "reverse", "spacing_m", "cell_radius_m", "horizon_ticks"):
             default = type(self).model_fields[option].default
             if getattr(self, option) != default and option not in takes:
                 taken = ", ".join(takes) or "no options"

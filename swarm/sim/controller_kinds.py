@@ -31,11 +31,12 @@ class ControllerArgs:
     robot_id: int = 0  # onboard: the robot it runs on (what a task's per-robot form needs)
     spacing_m: float | None = None  # pack_flood: slot spacing (None: its default from the robot)
     cell_radius_m: float | None = None  # lloyd_local: the cell's cut radius (None: not cut)
+    horizon_ticks: int | None = None  # lloyd_predict: ticks an entry is extrapolated over (None: 5)
 
     @classmethod
     def from_spec(cls, spec: Mapping[str, Any], robot: RobotParams, control_period_s: float, **more):
         """From a scenario's ``controller`` section (a mapping, e.g. ``ControllerSpec.model_dump()``)."""
-        keys = ("gain", "directions", "reverse", "spacing_m", "cell_radius_m")
+        keys = ("gain", "directions", "reverse", "spacing_m", "cell_radius_m", "horizon_ticks")
         options = {key: spec[key] for key in keys if spec.get(key) is not None}
         return cls(robot=robot, control_period_s=control_period_s, **options, **more)
 
@@ -204,15 +205,29 @@ def _onboard_lloyd_flood(args: ControllerArgs):
 def _lloyd_predict(args: ControllerArgs):
     from swarm.sim.coverage_controllers import LloydPredict
 
-    return LloydPredict(args.robot, args.control_period_s, _coverage(args), args.robot_count, args.reverse)
+    return LloydPredict(
+        args.robot, args.control_period_s, _coverage(args), args.robot_count, args.reverse, _horizon(args)
+    )
 
 
 def _onboard_lloyd_predict(args: ControllerArgs):
     from swarm.sim.coverage_onboard import OnboardLloydPredict
 
     return OnboardLloydPredict(
-        args.robot, args.control_period_s, _coverage(args), args.robot_count, args.robot_id, args.reverse
+        args.robot,
+        args.control_period_s,
+        _coverage(args),
+        args.robot_count,
+        args.robot_id,
+        args.reverse,
+        _horizon(args),
     )
+
+
+def _horizon(args: ControllerArgs) -> int:
+    from swarm.sim.coverage_onboard import HORIZON_TICKS
+
+    return HORIZON_TICKS if args.horizon_ticks is None else args.horizon_ticks
 
 
 def _coverage_weights(args: ControllerArgs):
@@ -369,10 +384,10 @@ CONTROLLER_KINDS: dict[str, ControllerKind] = {
         ControllerKind(
             "lloyd_predict",
             "coverage: lloyd_flood with each robot's target flooded too, known robots placed where their "
-            "targets take them",
+            "targets take them (over at most horizon_ticks of an entry's age)",
             _lloyd_predict,
             _onboard_lloyd_predict,
-            ("reverse",),
+            ("reverse", "horizon_ticks"),
             task="coverage",
         ),
         ControllerKind(

@@ -41,7 +41,7 @@ from swarm.core.experts import drive_toward_velocity
 from swarm.core.robot import RobotParams
 from swarm.core.tasks.coverage import CoverageSection, density_centroid
 from swarm.sim.coverage_gnn import CoverageGnnWeights, coverage_features, region_scale_m
-from swarm.sim.coverage_onboard import predicted_positions
+from swarm.sim.coverage_onboard import HORIZON_TICKS, predicted_positions
 from swarm.sim.links import Links, heard_slots
 from swarm.sim.steering_mlp import local_command, to_world
 
@@ -249,10 +249,22 @@ class LloydPredict(LloydFlood):
     fields = 5
     """Floats an entry of the table: ``age + 1, x, y, target x, target y``."""
 
+    def __init__(
+        self,
+        robot: RobotParams,
+        control_period_s: float,
+        section: CoverageSection,
+        robot_count: int,
+        reverse: bool = True,
+        horizon_ticks: float = HORIZON_TICKS,
+    ):
+        super().__init__(robot, control_period_s, section, robot_count, reverse)
+        self.horizon_ticks = float(horizon_ticks)  # math.inf: not capped
+
     def known_positions(self, memory: np.ndarray) -> np.ndarray:
-        """``(B, N, N, 2)``: every entry where its target takes it in the entry's age
-        (:func:`swarm.sim.coverage_onboard.predicted_positions`)."""
-        return predicted_positions(memory, self.robot.v_max_mps * self.control_period_s)
+        """``(B, N, N, 2)``: every entry where its target takes it in the entry's age, at most
+        ``horizon_ticks`` of it (:func:`swarm.sim.coverage_onboard.predicted_positions`)."""
+        return predicted_positions(memory, self.robot.v_max_mps * self.control_period_s, self.horizon_ticks)
 
     def update_targets(self, poses: np.ndarray, inbox: np.ndarray, heard: Links) -> np.ndarray:
         """``lloyd_flood``'s, among the predicted positions; each robot's own entry carries the target it

@@ -99,12 +99,20 @@ def merge_freshest(table: np.ndarray, neighbour_messages: np.ndarray) -> None:
         table[fresher, 1:] = message[fresher, 1:]
 
 
-def predicted_positions(table: np.ndarray, step_m: float) -> np.ndarray:
+HORIZON_TICKS = 5
+"""``lloyd_predict``'s default horizon: an entry is extrapolated over at most this many ticks of its age.
+A target tens of ticks old is itself stale; capped at 5 ticks the rule is as fast as the better of
+``lloyd_flood`` and the uncapped extrapolation on every cell measured
+(``bench/results/coverage_prediction_cap.md``)."""
+
+
+def predicted_positions(table: np.ndarray, step_m: float, horizon_ticks: float = HORIZON_TICKS) -> np.ndarray:
     """``(..., 2)`` where each entry of a ``lloyd_predict`` table ``(..., 5)`` (``age + 1, x, y,
-    target x, target y``) places its robot: ``p + min(|c - p|, (age - 1) step_m) (c - p) / |c - p|``,
+    target x, target y``) places its robot: ``p + min(|c - p|, min(age - 1, H) step_m) (c - p) / |c - p|``,
     the point reached driving from ``p`` straight at its target ``c`` at ``step_m`` a tick for the
-    entry's age in ticks (``p`` itself when ``c = p`` or the entry is of this tick or unknown)."""
-    ticks_old = np.maximum(table[..., 0] - 1.0, 0.0)
+    entry's age in ticks, at most ``H = horizon_ticks`` of them (``p`` itself when ``c = p``, ``H`` is 0
+    or the entry is of this tick or unknown)."""
+    ticks_old = np.clip(table[..., 0] - 1.0, 0.0, horizon_ticks)
     toward = table[..., 3:5] - table[..., 1:3]
     gap_m = np.sqrt((toward * toward).sum(-1))
     reach_m = np.minimum(gap_m, ticks_old * step_m)
@@ -172,9 +180,23 @@ class OnboardLloydPredict(OnboardLloydFlood):
     fields = 5
     """Floats an entry of the table: ``age + 1, x, y, target x, target y``."""
 
+    def __init__(
+        self,
+        robot: RobotParams,
+        control_period_s: float,
+        section: CoverageSection,
+        robot_count: int,
+        robot_id: int,
+        reverse: bool = True,
+        horizon_ticks: float = HORIZON_TICKS,
+    ):
+        super().__init__(robot, control_period_s, section, robot_count, robot_id, reverse)
+        self.horizon_ticks = float(horizon_ticks)  # math.inf: not capped
+
     def known_positions(self, entries: np.ndarray) -> np.ndarray:
-        """``(K, 2)``: each entry where its target takes it in its age (:func:`predicted_positions`)."""
-        return predicted_positions(entries, self.robot.v_max_mps * self.control_period_s)
+        """``(K, 2)``: each entry where its target takes it in its age, at most ``horizon_ticks`` of it
+        (:func:`predicted_positions`)."""
+        return predicted_positions(entries, self.robot.v_max_mps * self.control_period_s, self.horizon_ticks)
 
     def update_target(self, pose: np.ndarray, neighbour_messages: np.ndarray) -> np.ndarray:
         """``lloyd_flood``'s, among the predicted positions; its own entry carries the target it computes,
