@@ -62,6 +62,10 @@ TOLERANCE: dict[str, tuple[float, float]] = {
     "gnn/gnn_flood": (1e-12, 1e-14),  # docs/flood-gnn.md: to rounding (the target: 12 Newton steps)
     "gnn/gnn": (1e-12, 1e-15),
     "gnn/two_branch": (1e-12, 1e-15),
+    # the cells' sums round differently (numba loop vs numpy), and the learned unit direction
+    # (a, b) / |(a, b)| (swarm.sim.steering_mlp eq. (1)) amplifies that where |(a, b)| is small:
+    # measured at most 6.2e-12 m/s per metre on this suite (lloyd_predict's commands: 4e-14)
+    "lloyd_gnn": (1e-10, 1e-12),
 }
 DEFAULT_TOLERANCE = (1e-12, 1e-12)  # a new kind: rounding, until its docs claim more
 

@@ -66,6 +66,13 @@ def test_a_policy_file_round_trips_and_bad_files_are_named(tmp_path: Path):
         CoverageGnnWeights.load(ROOT / "models" / "formation" / "capt_gnn.npz")  # another task's
     with pytest.raises(PolicyFileError, match="capt_gnn"):
         FormationGnnWeights.load(path)
+
+    class FloodCellWeights(CoverageGnnWeights):  # the file of lloyd_gnn before it took lloyd_predict's cell
+        FORMAT = "coverage_gnn/1"
+
+    FloodCellWeights(weights.weights, weights.biases).save(tmp_path / "v1.npz")
+    with pytest.raises(PolicyFileError, match="coverage_gnn/1"):
+        CoverageGnnWeights.load(tmp_path / "v1.npz")
     (tmp_path / "junk.npz").write_bytes(b"not a zip")
     with pytest.raises(PolicyFileError, match="not a policy file"):
         CoverageGnnWeights.load(tmp_path / "junk.npz")
@@ -81,6 +88,33 @@ def test_the_command_vanishes_on_the_centroid_whatever_the_weights(seed):
         poses, poses[:, :2], tables, own, rng.random(20), np.zeros(2), 4.0, ROBOT, DT
     )
     np.testing.assert_array_equal(local_command(_random_weights(seed), features, gate, ROBOT.v_max_mps), 0.0)
+
+
+def test_lloyd_gnn_steers_from_lloyd_predicts_cell():
+    """The learned kind's cell is ``lloyd_predict``'s, horizon included: fed the same tables (made up
+    here, entries up to 12 ticks old with far targets, where the horizon matters), both compute the
+    same centroids and send the same 5-float entries; ``lloyd_flood``'s centroids differ."""
+    from swarm.sim.coverage_controllers import LloydFlood, LloydGnn, LloydPredict
+    from swarm.sim.links import Links
+
+    rng = np.random.default_rng(4)
+    count, batch = 6, 3
+    section = coverage.sweep_section(count)
+    poses = np.concatenate([rng.uniform(0, 2, (batch, count, 2)), rng.uniform(-3, 3, (batch, count, 1))], -1)
+    tables = np.concatenate(
+        [rng.integers(1, 13, (batch, count, count, 1)), rng.uniform(0, 2, (batch, count, count, 4))], -1
+    )
+    inbox = tables.reshape(batch, count, 5 * count)
+    heard = Links.from_dense(np.zeros((batch, count, count)))  # nothing heard: the tables are memory
+    learned = LloydGnn(ROBOT, DT, section, count, _random_weights(5))
+    predict = LloydPredict(ROBOT, DT, section, count)
+    sent_learned = learned.act(poses, poses[..., :2], inbox, heard)[1]
+    sent_predict = predict.act(poses, poses[..., :2], inbox, heard)[1]
+    np.testing.assert_array_equal(learned._targets, predict._targets)
+    np.testing.assert_array_equal(sent_learned, sent_predict)
+    flood = LloydFlood(ROBOT, DT, section, count)
+    flood.act(poses, poses[..., :2], tables[..., :3].reshape(batch, count, 3 * count), heard)
+    assert not np.allclose(flood._targets, predict._targets)
 
 
 def _section():

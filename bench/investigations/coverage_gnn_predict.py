@@ -1,19 +1,18 @@
-"""Does the learned coverage steering add anything over ``lloyd_predict`` when it is given its information?
+"""Which cell should the learned coverage steering read: ``lloyd_flood``'s, ``lloyd_predict``'s, or both?
 
-``lloyd_gnn`` steers from ``lloyd_flood``'s cell (the Voronoi cell among the flooded positions, as old as
-their hops). ``lloyd_predict`` floods each robot's target too and computes the cell among the positions
-extrapolated by their age, which beats both on dense graphs (``docs/tasks.md``). Here the same learned
-readout (``swarm.sim.coverage_gnn``: features, MLP, DAgger imitation of the central ``lloyd`` on
-N = 4-12, ``swarm train --algo coverage``'s default settings and seed) is trained on top of
-``lloyd_predict``'s cell instead (``predict_gnn``), and on both cells (``both_gnn``: the features of
-``predict_gnn`` and the direction and gate to ``lloyd_flood``'s centroid, so that it may learn when to
-trust the prediction). Every kind runs on the coverage sweep's starts of the cells given
-(``swarm.scenarios.task_sweep``: the same starts for every kind, 60 s):
+The learned readout (``swarm.sim.coverage_gnn``: features, MLP, DAgger imitation of the central ``lloyd``
+on N = 4-12, ``swarm train --algo coverage``'s default settings and seed) steers from one Voronoi cell.
+The shipped ``lloyd_gnn`` reads ``lloyd_predict``'s (flooded positions extrapolated toward their
+targets over at most 5 ticks of their age). Here the same readout is trained on ``lloyd_flood``'s cell
+(``flood_gnn``: what ``lloyd_gnn`` was before 2026-12-06, file format ``coverage_gnn/1``) and on both
+(``both_gnn``: ``lloyd_gnn``'s features and the direction and gate to ``lloyd_flood``'s centroid, so that
+it may learn when to trust the prediction). Every kind runs on the coverage sweep's starts of the cells
+given (``swarm.scenarios.task_sweep``: the same starts for every kind, 60 s):
 
     python bench/investigations/coverage_gnn_predict.py --out bench/results/coverage_gnn_predict.md
 
-It is an investigation, not a controller kind: the weights it trains are written beside the table
-(``--weights``), not shipped.
+It is an investigation: the weights it trains are written beside the table (``--weights``), not shipped;
+``lloyd_gnn`` runs the shipped ``models/coverage/lloyd_gnn.npz``.
 """
 
 from __future__ import annotations
@@ -31,19 +30,26 @@ import swarm.learn.train.coverage as coverage_training
 from swarm.core.robot import RobotParams
 from swarm.learn.train.steering import dagger
 from swarm.scenarios.task_sweep import run_cell
-from swarm.sim.coverage_controllers import LloydGnn, LloydPredict, centroid_targets
+from swarm.sim.coverage_controllers import LloydFlood, LloydGnn, centroid_targets
 from swarm.sim.coverage_gnn import FEATURES, CoverageGnnWeights
+from swarm.sim.links import Links
 from swarm.sim.steering_mlp import target_features
 
-KINDS = ("lloyd", "lloyd_flood", "lloyd_predict", "lloyd_gnn", "predict_gnn", "both_gnn")
+KINDS = ("lloyd", "lloyd_flood", "lloyd_predict", "lloyd_gnn", "flood_gnn", "both_gnn")
 DEFAULT_CELLS = ("complete:24", "line:24", "cycle:50", "line:50", "random:50", "disk:50", "complete:100")
 
 
-class PredictGnn(LloydGnn):
-    """``lloyd_gnn``'s learned steering on ``lloyd_predict``'s tables and cell."""
+class FloodGnn(LloydGnn):
+    """``lloyd_gnn``'s learned steering on ``lloyd_flood``'s tables and cell (3-float entries, the flooded
+    positions as they were sent)."""
 
-    fields = LloydPredict.fields
-    update_targets = LloydPredict.update_targets
+    fields = LloydFlood.fields
+
+    def known_positions(self, memory: np.ndarray) -> np.ndarray:
+        return LloydFlood.known_positions(self, memory)
+
+    def update_targets(self, poses: np.ndarray, inbox: np.ndarray, heard: Links) -> np.ndarray:
+        return LloydFlood.update_targets(self, poses, inbox, heard)
 
 
 class BothWeights(CoverageGnnWeights):
@@ -54,12 +60,12 @@ class BothWeights(CoverageGnnWeights):
     KIND = "both_gnn"
 
 
-class BothGnn(PredictGnn):
+class BothGnn(LloydGnn):
     """The learned steering from both cells: ``lloyd_predict``'s (its features and gate, as
-    ``predict_gnn``) and ``lloyd_flood``'s (the direction and gate to its centroid)."""
+    ``lloyd_gnn``) and ``lloyd_flood``'s (the direction and gate to its centroid)."""
 
     def features(self, poses: np.ndarray, memory: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        features, gate = super().features(poses, memory)  # on lloyd_predict's cell
+        features, gate = super().features(poses, memory)  # on lloyd_predict's cell (lloyd_gnn's)
         count = poses.shape[1]
         valid = memory[..., 0] > 0.0
         valid[:, np.arange(count), np.arange(count)] = False
@@ -70,7 +76,14 @@ class BothGnn(PredictGnn):
         return np.concatenate([features, flood], axis=-1), gate
 
 
-LEARNED = {"predict_gnn": (PredictGnn, CoverageGnnWeights), "both_gnn": (BothGnn, BothWeights)}
+class FloodWeights(CoverageGnnWeights):
+    """``flood_gnn``'s MLP: ``lloyd_gnn``'s features on ``lloyd_flood``'s cell."""
+
+    FORMAT = "coverage_gnn/1"
+    KIND = "flood_gnn"
+
+
+LEARNED = {"flood_gnn": (FloodGnn, FloodWeights), "both_gnn": (BothGnn, BothWeights)}
 
 
 def trained(name: str, out: Path):
@@ -109,10 +122,11 @@ def main(argv: list[str] | None = None) -> int:
 
     # -- evaluate: every kind on the sweep's starts of every cell
     lines = [
-        "# Coverage: a learned steering on lloyd_predict's cell (`predict_gnn`) and on both (`both_gnn`)",
+        "# Coverage: the learned steering on lloyd_predict's cell (`lloyd_gnn`), lloyd_flood's (`flood_gnn`)"
+        " and both (`both_gnn`)",
         "",
         f"`python bench/investigations/coverage_gnn_predict.py --cells {' '.join(args.cells)} --starts"
-        f" {args.starts} --kinds {' '.join(args.kinds)} --out {args.out}`: `predict_gnn` and `both_gnn`"
+        f" {args.starts} --kinds {' '.join(args.kinds)} --out {args.out}`: `flood_gnn` and `both_gnn`"
         " trained as `swarm train --algo coverage` trains `lloyd_gnn` (same settings and seed; weights in"
         f" `{args.weights}`), then every kind on the coverage sweep's first {args.starts} starts of each"
         " cell (60 s, the same starts for every kind). Time to within 1.05 H_ref (s: median over the starts"

@@ -392,7 +392,7 @@ CONTROLLER_KINDS: dict[str, ControllerKind] = {
         ),
         ControllerKind(
             "lloyd_gnn",
-            "coverage: lloyd_flood's flood and cells, a learned steering (controller.model)",
+            "coverage: lloyd_predict's flood and cells, a learned steering (controller.model)",
             _lloyd_gnn,
             _onboard_lloyd_gnn,
             ("model", "reverse"),

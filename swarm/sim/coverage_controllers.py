@@ -275,9 +275,9 @@ class LloydPredict(LloydFlood):
         return memory
 
 
-class LloydGnn(LloydFlood):
-    """``lloyd_gnn``, batched: ``lloyd_flood``'s flood and cells, a learned steering
-    (``swarm.sim.coverage_gnn``)."""
+class LloydGnn(LloydPredict):
+    """``lloyd_gnn``, batched: ``lloyd_predict``'s flood and cells (its default horizon), a learned
+    steering (``swarm.sim.coverage_gnn``)."""
 
     def __init__(
         self,

@@ -1,9 +1,10 @@
-"""The learned coverage controller ``lloyd_gnn``: ``lloyd_flood``'s messages, a learned steering (numpy).
+"""The learned coverage controller ``lloyd_gnn``: ``lloyd_predict``'s messages, a learned steering (numpy).
 
-Information and aggregation are ``lloyd_flood``'s (``swarm.sim.coverage_controllers``): every robot
-floods the freshest position it knows of every robot with its age in hops (``N x (age + 1, x, y)``;
-the merge keeps the least age) and takes its Voronoi cell among every robot it knows. From that a
-robot has, in its own frame:
+Information and aggregation are ``lloyd_predict``'s (``swarm.sim.coverage_controllers``): every robot
+floods the freshest position it knows of every robot, the target that robot computed there and the
+entry's age in hops (``N x (age + 1, x, y, target x, target y)``; the merge keeps the least age), places
+every robot it knows where its target takes it in the entry's age (at most ``HORIZON_TICKS``, 5 ticks
+of it) and takes its Voronoi cell among those points. From that a robot has, in its own frame:
 
 - ``r``: the vector from its axle to its cell's centroid ``c``; ``rho = |r|``, ``rho_n = rho / (v_max T)``;
 - ``known``: the fraction of the N robots it knows (itself included);
@@ -18,8 +19,11 @@ Features ``f = (r_x / rho, r_y / rho, min(rho_n, 1), known, stale, mass, centre_
 MLP of ``swarm.sim.steering_mlp`` give the command, its eq. (1): full speed (``v_max min(rho_n, 1)``,
 the expert's) in a learned direction ``(a, b)``. Imitation (``swarm.learn.train.coverage``) fits that
 direction to the centralized Lloyd's (``lloyd``: toward the centroid of the robot's true Voronoi cell).
-With the same information as ``lloyd_flood`` it can at best correct for what the staleness and the
+With the same information as ``lloyd_predict`` it can at best correct for what the staleness and the
 bunching predict about the true cell; ``docs/tasks.md`` measures what it does.
+
+File format ``coverage_gnn/2``; ``coverage_gnn/1`` (before 2026-12-06) steered from ``lloyd_flood``'s
+cell and 3-float entries, and is refused (retrain: ``swarm train --algo coverage``).
 
 The batched form (``swarm.sim.coverage_controllers.LloydGnn``) and the per-robot one
 (:class:`OnboardLloydGnn`, here: numpy only, what the agents import) share :func:`coverage_features`.
@@ -31,7 +35,7 @@ import numpy as np
 
 from swarm.core.robot import RobotParams
 from swarm.core.tasks.coverage import CoverageSection
-from swarm.sim.coverage_onboard import OnboardLloydFlood
+from swarm.sim.coverage_onboard import OnboardLloydPredict
 from swarm.sim.steering_mlp import SteeringMlp, local_command, target_features, to_world
 
 FEATURES = ("dir_x", "dir_y", "near", "known", "stale", "mass", "centre_x", "centre_y")
@@ -43,7 +47,7 @@ MASS_SCALE = 4.0
 class CoverageGnnWeights(SteeringMlp):
     """The MLP ``g`` of eq. (1) for ``lloyd_gnn`` (``swarm.sim.steering_mlp``)."""
 
-    FORMAT = "coverage_gnn/1"
+    FORMAT = "coverage_gnn/2"
     FEATURES = FEATURES
     KIND = "lloyd_gnn"
 
@@ -66,7 +70,7 @@ def coverage_features(
     control_period_s: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     """The module's features ``(..., 8)`` and the gate ``(...)``: poses ``(..., 3)``, cell centroids
-    ``(..., 2)``, the flooded tables ``(..., N, 3)`` (age + 1, x, y; 0 unknown), ``own (..., N)`` true at
+    ``(..., 2)``, the flooded tables ``(..., N, F)`` (age + 1, x, y, ...; 0 unknown), ``own (..., N)`` true at
     the robot's own row, its cell's mass ``(...)``, the density's centroid ``(2,)`` and its scale."""
     count = tables.shape[-2]
     direction, gate = target_features(poses, targets, robot, control_period_s)
@@ -99,7 +103,7 @@ def coverage_features(
     return features, gate
 
 
-class OnboardLloydGnn(OnboardLloydFlood):
+class OnboardLloydGnn(OnboardLloydPredict):
     """``lloyd_gnn`` for robot ``robot_id`` (``swarm.sim.onboard``'s protocol; numpy only)."""
 
     def __init__(

@@ -15,8 +15,8 @@ loop (the fit and the DAgger loop are ``swarm.learn.train.steering``'s, shared w
 - The fit: every row so far; the direction only (eq. (1) drives at the expert's speed
   ``v_max min(rho_n, 1)`` toward the robot's own cell's centroid).
 - Every iteration's weights are checked in closed loop on ``eval_cells``: the median over their starts
-  of the first time ``H <= 1.05 H_ref`` (``eval_s`` where never), beside ``lloyd_flood``'s on the same
-  starts; the best iterate is the result (``policy.npz``).
+  of the first time ``H <= 1.05 H_ref`` (``eval_s`` where never), beside ``lloyd_predict``'s,
+  ``lloyd_flood``'s and ``lloyd``'s on the same starts; the best iterate is the result (``policy.npz``).
 
 Seeded: numpy and torch from ``seed``, torch on one thread: the same command on the same machine gives
 the same weights.
@@ -156,6 +156,6 @@ def train(config: CoverageConfig) -> Path:
         episode=episode,
         closed_loop=closed_loop,
         score="median_first_within_s",
-        references=("lloyd_flood", "lloyd"),
+        references=("lloyd_predict", "lloyd_flood", "lloyd"),
         imitate_speed=False,  # the direction only
     )
