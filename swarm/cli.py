@@ -309,19 +309,27 @@ def _task_sweep(args: argparse.Namespace, data: dict) -> int:
 
 
 def _policy_task(path: str) -> str:
-    """The task a policy file is for: formation or coverage by its ``format``, else rendezvous."""
+    """The task a policy file is for: formation or coverage by its ``format`` (any version of it: the
+    loader names an outdated one), else rendezvous."""
     import numpy as np
 
     from swarm.sim.coverage_gnn import CoverageGnnWeights
     from swarm.sim.formation_gnn import FormationGnnWeights
+    from swarm.sim.steering_mlp import PolicyFileError
 
     try:
         with np.load(path, allow_pickle=False) as data:
-            found = str(data["format"]) if "format" in data.files else None
+            found = str(data["format"]) if "format" in data.files else ""
     except (OSError, ValueError) as error:
         raise UsageError(f"{path}: not a policy file ({error})") from None
-    formats = {FormationGnnWeights.FORMAT: "formation", CoverageGnnWeights.FORMAT: "coverage"}
-    return formats.get(found or "", "rendezvous")
+    for weights_class, task in ((FormationGnnWeights, "formation"), (CoverageGnnWeights, "coverage")):
+        if found.split("/")[0] == weights_class.FORMAT.split("/")[0]:
+            try:
+                weights_class.load(path)  # refused before any cell runs
+            except PolicyFileError as error:
+                raise UsageError(f"{path}: {error}") from None
+            return task
+    return "rendezvous"
 
 
 def _task_evaluate(args: argparse.Namespace, task: str) -> int:

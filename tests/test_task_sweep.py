@@ -282,3 +282,20 @@ def test_bad_task_evaluations_exit_2_and_write_nothing(extra, message, tmp_path,
     assert main(["evaluate", "models/formation/capt_gnn.npz", *extra, "--out", str(out)]) == 2
     assert message in capsys.readouterr().err
     assert not out.exists()
+
+
+def test_an_outdated_coverage_policy_is_refused_by_name_before_any_cell_runs(tmp_path, capsys):
+    """A ``coverage_gnn/1`` file (``lloyd_gnn`` on ``lloyd_flood``'s cell, before the format changed):
+    ``swarm evaluate`` names the file and both formats, exit 2, and writes nothing."""
+    from swarm.cli import main
+    from swarm.sim.coverage_gnn import FEATURES, CoverageGnnWeights
+
+    class Outdated(CoverageGnnWeights):
+        FORMAT = "coverage_gnn/1"
+
+    path = tmp_path / "v1.npz"
+    Outdated((np.zeros((len(FEATURES), 3)),), (np.zeros(3),)).save(path)
+    out = tmp_path / "out"
+    assert main(["evaluate", str(path), "--sizes", "4", "--seeds", "1", "--out", str(out)]) == 2
+    assert f"{path}: format 'coverage_gnn/1', expected 'coverage_gnn/2'" in capsys.readouterr().err
+    assert not out.exists()

@@ -130,9 +130,17 @@ def _learned_weights(args: ControllerArgs, weights_class: Any, default_name: str
     file ``models/<default_name>``."""
     from pathlib import Path
 
-    if args.policy is None:
-        return weights_class.load(Path(__file__).resolve().parent.parent.parent / "models" / default_name)
-    return weights_class.load(args.policy)
+    from swarm.sim.steering_mlp import PolicyFileError
+
+    source = args.policy
+    if source is None:
+        source = Path(__file__).resolve().parent.parent.parent / "models" / default_name
+    try:
+        return weights_class.load(source)
+    except PolicyFileError as error:
+        if isinstance(source, bytes):
+            raise
+        raise PolicyFileError(f"{source}: {error}") from None
 
 
 def _formation_weights(args: ControllerArgs):
