@@ -14,6 +14,7 @@ import pytest
 from swarm.core import graphs, tasks
 from swarm.core.robot import RobotParams
 from swarm.core.tasks import coverage
+from swarm.scenarios.scenario import ControllerSpec
 from swarm.sim.controller_kinds import (
     CONTROLLER_KINDS,
     ControllerArgs,
@@ -357,3 +358,27 @@ def test_lloyd_predict_extrapolates_over_at_most_its_horizon():
         expected = [[far_m, 0.0], [near_m, 1.0]]
         np.testing.assert_allclose(predicted_positions(table, 0.1, horizon), expected, rtol=0, atol=1e-15)
     np.testing.assert_allclose(predicted_positions(table, 0.1), [[0.5, 0.0], [0.3, 1.0]], rtol=0, atol=1e-15)
+
+
+def test_lloyd_predict_with_a_horizon_of_zero_drives_as_lloyd_flood():
+    """``horizon_ticks: 0`` places every known robot where it was sent from: on a line of 8 (entries up
+    to 7 ticks old) the swarm moves bit for bit as ``lloyd_flood``'s, while the default horizon does
+    not. The option comes from the scenario's controller section and is refused for another kind."""
+    count, square = 8, section(grid_per_axis=24)
+    rng = np.random.default_rng(5)
+    start = np.concatenate([rng.uniform(-1, 1, (2, count, 2)), rng.uniform(-np.pi, np.pi, (2, count, 1))], -1)
+    spec = {"kind": "lloyd_predict", "horizon_ticks": 0}
+    runs = {}
+    for name, horizon in (("lloyd_flood", None), ("zero", 0), ("default", None)):
+        kind = "lloyd_flood" if name == "lloyd_flood" else "lloyd_predict"
+        args = _args(square, count, horizon_ticks=horizon)
+        line = graphs.line(count)[None]
+        sim = KinematicSim(ROBOT, batched_controller(kind, args), DT, start, adjacency=line)
+        for _ in range(40):
+            sim.move(sim.act())
+        runs[name] = sim.poses.copy()
+    assert np.array_equal(runs["zero"], runs["lloyd_flood"])
+    assert not np.array_equal(runs["default"], runs["lloyd_flood"])
+    assert ControllerArgs.from_spec(spec, ROBOT, DT).horizon_ticks == 0
+    with pytest.raises(ValueError, match="horizon_ticks"):
+        ControllerSpec.model_validate({"kind": "lloyd_flood", "horizon_ticks": 3})
