@@ -55,12 +55,12 @@ def main(argv: list[str] | None = None) -> int:
         row = [f"{graph} of {count}"]
         began = time.perf_counter()
         for kind in kinds:
-            horizon_ticks = math.inf if kind == "no cap" else float(kind.split()[1])
-            controller = (
-                LloydPredict(robot, config.control_period_s, section, count, horizon_ticks=horizon_ticks)
-                if kind != "lloyd_flood"
-                else kind
-            )
+            controller: str | LloydPredict = kind
+            if kind != "lloyd_flood":
+                horizon_ticks = math.inf if kind == "no cap" else float(kind.split()[1])
+                controller = LloydPredict(
+                    robot, config.control_period_s, section, count, horizon_ticks=horizon_ticks
+                )
             cell = run_cell(config, graph, count, controller, 0.0, starts=starts)
             row.append(time_and_end(cell))
         lines.append("| " + " | ".join(row) + " |")
