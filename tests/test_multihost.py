@@ -205,9 +205,12 @@ def test_a_network_partition_mid_run_is_survived_on_both_sides(two_hosts, tmp_pa
     for near in (4, 5):  # 4 hears 3, 5 hears 0: their messages stopped during the cut
         # the end of the run, and at most the flicker of the sim's token when the link came back (the
         # token re-sent with the server's view of robot 5 going and coming back at the same tick, 6.2 s,
-        # in a loaded run); a near agent computed every tick: it was never cut off
-        assert 1 <= records[near]["sim_lost"] <= 2, (records[near], per_robot[near])
-        assert records[near]["ticks"] == steps and records[near]["messages"]["lost"] > 0, records[near]
+        # in a loaded run); a near agent got every tick's pose: it was never cut off. It computed each
+        # one but those a newer pose overtook (realtime: on a loaded machine one of 240 was skipped so)
+        record = records[near]
+        assert 1 <= record["sim_lost"] <= 2, (record, per_robot[near])
+        assert record["ticks"] + record["poses"]["skipped"] == steps, record
+        assert record["poses"]["skipped"] <= 0.05 * steps and record["messages"]["lost"] > 0, record
 
 
 OUTSIDER = """
