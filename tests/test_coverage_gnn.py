@@ -188,3 +188,21 @@ def test_the_pybullet_runtime_runs_the_learned_coverage_under_faults(tmp_path: P
         record = json.loads((out / "logs" / f"agent_{i}.json").read_text())
         assert record["controller"] == "lloyd_gnn" and record["heavy_modules"] == []
         assert record["neighbours"] == sorted({(i - 1) % 12, (i + 1) % 12})
+
+
+def test_training_episodes_take_packet_loss_when_asked():
+    """``packet_losses``: an episode under 50% loss records staler tables (the ``stale`` feature, the
+    mean age of what the robots know) than the same episode without loss; the default draws nothing
+    more from the generator, so the default training is unchanged (the shipped file retrains bit for
+    bit, models/README.md)."""
+    base = train_coverage.make_config("smoke", {"progress": False, "episode_s": 1.0})
+    lossy = train_coverage.make_config("smoke", {"progress": False, "episode_s": 1.0, "packet_losses": [0.5]})
+    assert lossy.packet_losses == (0.5,)
+    weights = _random_weights(6)
+    stale = FEATURES.index("stale")
+    rows = {}
+    for name, config in (("none", base), ("lossy", lossy)):
+        rng = np.random.default_rng(9)
+        features, _ = train_coverage.episode(config, weights, 1.0, "line", 6, rng)
+        rows[name] = features[:, stale].mean()
+    assert rows["lossy"] > rows["none"]

@@ -6,7 +6,8 @@ loop (the fit and the DAgger loop are ``swarm.learn.train.steering``'s, shared w
 - An episode is a batch of ``envs`` starts at every N of ``counts`` (all <= 12) on every graph of
   ``graphs``: the coverage sweep's cells (``swarm.scenarios.task_sweep.cell_starts``: every robot in
   one quadrant of a square of side ``0.9 sqrt(N)`` m, uniform density; disk graphs of
-  ``disk_radius_m``), run in ``KinematicSim`` for ``episode_s``. Every tick each robot runs
+  ``disk_radius_m``), run in ``KinematicSim`` for ``episode_s``, under a packet loss drawn from
+  ``packet_losses`` (default: none). Every tick each robot runs
   ``lloyd_gnn``'s flood and cell (fixed, not learned) and its features are recorded with the expert's
   label: the point velocity, in the robot's frame, that centralized Lloyd commands at that state
   (toward the centroid of its true Voronoi cell, ``drive_toward_velocity``).
@@ -31,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from swarm.core.faults import LinkFaults
 from swarm.core.robot import RobotParams, world_to_local
 from swarm.core.tasks import coverage
 from swarm.learn.train import preset_with_overrides
@@ -62,6 +64,7 @@ class CoverageConfig:
     eval_cells: tuple[tuple[str, int], ...] = (("line", 12), ("cycle", 12), ("disk", 12), ("complete", 8))
     eval_starts: int = 8
     eval_s: float = 15.0
+    packet_losses: tuple[float, ...] = (0.0,)  # each episode's loss drawn from these (one: no draw)
     progress: bool = True
 
 
@@ -77,7 +80,8 @@ def make_config(preset: str = "default", overrides: dict | None = None) -> Cover
     overrides = dict(overrides or {})
     if "eval_cells" in overrides:
         overrides["eval_cells"] = tuple(tuple(cell) for cell in overrides["eval_cells"])
-    return preset_with_overrides("coverage", PRESETS, preset, overrides, ("counts", "graphs"))
+    tuple_fields = ("counts", "graphs", "packet_losses")
+    return preset_with_overrides("coverage", PRESETS, preset, overrides, tuple_fields)
 
 
 def _cells(
@@ -104,6 +108,12 @@ def episode(
     poses, adjacency = cell_starts(_cells(config, int(rng.integers(2**31)), config.envs), topology, count)
     learner = LloydGnn(robot, config.control_period_s, section, count, weights)
     expert = LloydExpert(robot, config.control_period_s, section, reverse=True)
+    losses = config.packet_losses
+    loss = losses[int(rng.integers(len(losses)))] if len(losses) > 1 else losses[0]
+    faults = None
+    if loss > 0.0:
+        spec = [{"kind": "packet_loss", "p": loss}]
+        faults = LinkFaults(spec, config.control_period_s, seed=int(rng.integers(2**31)))
     sim = KinematicSim(
         robot,
         learner,
@@ -111,6 +121,7 @@ def episode(
         poses,
         adjacency=adjacency,
         disk_radius_m=config.disk_radius_m if adjacency is None else None,
+        link_faults=faults,
     )
     expert_drives = rng.random(len(poses)) < beta
     features, labels = [], []
