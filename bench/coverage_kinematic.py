@@ -95,7 +95,7 @@ def run_cell(
         task=section,
         cell_radius_m=cell_radius,
     )
-    faults = LinkFaults([{"kind": "packet_loss", "p": loss}], CONTROL_PERIOD_S, seed=count) if loss else None
+    faults = LinkFaults.packet_loss(loss, CONTROL_PERIOD_S, seed=count) if loss else None
     sim = KinematicSim(
         robot,
         batched_controller(controller, args),

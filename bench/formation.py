@@ -70,7 +70,7 @@ def run_cell(graph: str, count: int, poses: np.ndarray, controller_name: str, lo
     else:
         rng = np.random.default_rng(count)  # a random kind: one connected graph per start
         graph_args = {"adjacency": np.stack([topologies.draw(graph, count, rng) for _ in range(len(poses))])}
-    faults = LinkFaults([{"kind": "packet_loss", "p": loss}], CONTROL_PERIOD_S, seed=count) if loss else None
+    faults = LinkFaults.packet_loss(loss, CONTROL_PERIOD_S, seed=count) if loss else None
     sim = KinematicSim(robot, controller, CONTROL_PERIOD_S, poses, link_faults=faults, **graph_args)
     hold_ticks = round(section.hold_s / CONTROL_PERIOD_S)
     ok = [formation.occupied(sim.poses[..., :2], slots, section.tolerance_m)]

@@ -220,6 +220,12 @@ class LinkFaults:
             self._down.setdefault(pair, []).append((since, None, by))
 
     @classmethod
+    def packet_loss(cls, p: float, control_period_s: float, seed: int = 0) -> LinkFaults:
+        """Every message on every link lost with probability ``p``, all run long (what the sweeps, the
+        benchmarks and the training mean by a packet loss)."""
+        return cls([{"kind": "packet_loss", "p": p}], control_period_s, seed)
+
+    @classmethod
     def from_scenario(cls, scenario: Any) -> LinkFaults:
         """From a validated ``swarm.scenarios.scenario.Scenario``."""
         return cls(scenario.faults, scenario.sim.control_period_s, scenario.faults_seed)

@@ -286,9 +286,7 @@ def _converge_starts(
         times = np.full(len(poses), np.nan)
         disconnected = np.zeros(len(poses), dtype=bool) if adjacency is None else None
         for seed, chunk in enumerate(chunks):
-            faults = LinkFaults(
-                [{"kind": "packet_loss", "p": config.packet_loss}], config.control_period_s, seed
-            )
+            faults = LinkFaults.packet_loss(config.packet_loss, config.control_period_s, seed)
             part = None if disconnected is None else np.zeros(len(chunk), dtype=bool)
             sim = KinematicSim(
                 robot,

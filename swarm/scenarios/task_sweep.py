@@ -187,7 +187,7 @@ def run_chunk(
     )
     faults = None
     if loss > 0:
-        faults = LinkFaults([{"kind": "packet_loss", "p": loss}], config.control_period_s, seed=loss_seed)
+        faults = LinkFaults.packet_loss(loss, config.control_period_s, seed=loss_seed)
     sim = KinematicSim(
         robot,
         batched_controller(controller, args) if isinstance(controller, str) else controller,

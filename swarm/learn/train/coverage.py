@@ -112,8 +112,7 @@ def episode(
     loss = losses[int(rng.integers(len(losses)))] if len(losses) > 1 else losses[0]
     faults = None
     if loss > 0.0:
-        spec = [{"kind": "packet_loss", "p": loss}]
-        faults = LinkFaults(spec, config.control_period_s, seed=int(rng.integers(2**31)))
+        faults = LinkFaults.packet_loss(loss, config.control_period_s, seed=int(rng.integers(2**31)))
     sim = KinematicSim(
         robot,
         learner,
