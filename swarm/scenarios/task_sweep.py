@@ -27,6 +27,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
@@ -336,7 +337,8 @@ def run_task_sweep(
         from tqdm import tqdm
 
         bar = tqdm(total=len(todo), unit="cell", desc=f"sweep {config.task}")
-    rows: list[dict] = []
+    rows: dict[str, dict] = {}  # by cell file name, in the order run
+    finished: tuple[str, dict] | None = None  # the cell whose file is being written
     try:
         for topology, count, loss, controller in todo:
             on_progress = None
@@ -351,24 +353,41 @@ def run_task_sweep(
             name = f"{topology}-N{count}-{controller}-loss{loss:g}.json"
             if reuse and (out_dir / "cells" / name).is_file():
                 cell = json.loads((out_dir / "cells" / name).read_text())
+                finished = (name, cell)
             else:
                 cell = run_cell(
                     config, topology, count, controller, loss, on_progress, starts[topology, count]
                 )
-                (out_dir / "cells" / name).write_text(json.dumps(cell) + "\n")
-            rows.append(summarize_cell(cell, config.cells.columns))
+                finished = (name, cell)
+                _write_atomically(out_dir / "cells" / name, json.dumps(cell) + "\n")
+            rows[name] = summarize_cell(cell, config.cells.columns)
+            finished = None
             if bar is not None:
                 bar.update()
     except KeyboardInterrupt:  # keep what is done: the tables of the finished cells, then exit 130
+        # a Ctrl-C between a cell's file and its row: the file is there, so is its row
+        if finished is not None and finished[0] not in rows and (out_dir / "cells" / finished[0]).is_file():
+            rows[finished[0]] = summarize_cell(finished[1], config.cells.columns)
         if rows:
-            write_tables(out_dir, config, rows, note=f"Interrupted after {len(rows)} of {len(todo)} cells.")
+            note = f"Interrupted after {len(rows)} of {len(todo)} cells."
+            write_tables(out_dir, config, list(rows.values()), note=note)
         raise
     finally:
         if bar is not None:
             bar.close()
-    write_tables(out_dir, config, rows)
-    plot_task_sweep(out_dir / "sweep.png", config, rows)
-    return rows
+    write_tables(out_dir, config, list(rows.values()))
+    plot_task_sweep(out_dir / "sweep.png", config, list(rows.values()))
+    return list(rows.values())
+
+
+def _write_atomically(path: Path, text: str) -> None:
+    """``path`` holds ``text`` whole or is not there: a Ctrl-C never leaves half a cell file."""
+    partial = path.with_name(path.name + ".partial")
+    try:
+        partial.write_text(text)
+        os.replace(partial, path)
+    finally:
+        partial.unlink(missing_ok=True)
 
 
 def write_tables(out_dir: Path, config: TaskSweepConfig, rows: list[dict], note: str = "") -> None:
