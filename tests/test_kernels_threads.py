@@ -20,10 +20,10 @@ import numba
 import numpy as np
 import pytest
 
-from swarm.core import graphs
+from swarm.core import graphs, tasks
 from swarm.core.robot import RobotParams
-from swarm.sim import kernels
-from swarm.sim.controller_kinds import ControllerArgs, batched_controller
+from swarm.sim import coverage_controllers, kernels
+from swarm.sim.controller_kinds import CONTROLLER_KINDS, ControllerArgs, batched_controller
 from swarm.sim.kinematic import KinematicSim
 
 pytestmark = pytest.mark.slow  # compiles every kernel's serial and parallel variants
@@ -90,5 +90,28 @@ def test_threaded_engine_is_bit_for_bit_the_serial_one(kind: str, graph: str, mo
         monkeypatch.setattr(kernels, "PARALLEL_MIN_ROBOTS", threshold)
         sim = KinematicSim(robot, batched_controller(kind, args), 0.05, poses, **links)
         runs.append(sim.rollout(40))
+    assert np.abs(runs[0][-1] - runs[0][0]).max() > 0.05  # the robots moved
+    np.testing.assert_array_equal(runs[1], runs[0])
+
+
+COVERAGE_KINDS = [name for name, kind in CONTROLLER_KINDS.items() if kind.task == "coverage"]
+
+
+@pytest.mark.parametrize("kind", COVERAGE_KINDS)
+def test_threaded_coverage_cells_are_bit_for_bit_the_serial_ones(kind: str, monkeypatch) -> None:
+    """The coverage kinds' cells (``swarm.sim.coverage_controllers.cell_sums``) threaded from
+    ``PARALLEL_MIN_CELL_POINTS``: a swarm's whole trajectory on a line graph, threaded against serial."""
+    robot = RobotParams()
+    section = tasks.parse_section({"kind": "coverage", "region": [[-1, -1], [1, -1], [1, 1], [-1, 1]]})
+    args = ControllerArgs(robot=robot, control_period_s=0.05, robot_count=10, task=section)
+    rng = np.random.default_rng(4)
+    poses = np.concatenate([rng.uniform(-1, 1, (5, 10, 2)), rng.uniform(-np.pi, np.pi, (5, 10, 1))], axis=-1)
+    numba.set_num_threads(2)
+    runs = []
+    for threshold in (1 << 62, 0):  # serial, then threaded
+        monkeypatch.setattr(coverage_controllers, "PARALLEL_MIN_CELL_POINTS", threshold)
+        line = graphs.line(10)[None]
+        sim = KinematicSim(robot, batched_controller(kind, args), 0.05, poses, adjacency=line)
+        runs.append(sim.rollout(30))
     assert np.abs(runs[0][-1] - runs[0][0]).max() > 0.05  # the robots moved
     np.testing.assert_array_equal(runs[1], runs[0])

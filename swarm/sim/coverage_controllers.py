@@ -25,14 +25,16 @@ step of Lloyd's map). The kinds differ in what the target is computed from:
   every robot moves the whole way to its centroid in one tick, so on dense graphs the prediction is
   what closes the gap to the expert (``bench/results/coverage_prediction.md``).
 
-The cells of the decentralized kinds are computed by one numba kernel (:func:`cell_sums`); the
-robots' on-board forms (``swarm.sim.coverage_onboard``) compute them with numpy masks, to rounding.
+The cells of the decentralized kinds are computed by one numba kernel (:func:`cell_sums`, on threads
+for large batches); the robots' on-board forms (``swarm.sim.coverage_onboard``) compute them with
+numpy masks, to rounding.
 A point on a cell's boundary (equidistant) belongs to every robot it is nearest to.
 """
 
 from __future__ import annotations
 
 import math
+import os
 
 import numba
 import numpy as np
@@ -40,13 +42,60 @@ import numpy as np
 from swarm.core.experts import drive_toward_velocity
 from swarm.core.robot import RobotParams
 from swarm.core.tasks.coverage import CoverageSection, density_centroid
+from swarm.sim import kernels
 from swarm.sim.coverage_gnn import CoverageGnnWeights, coverage_features, region_scale_m
 from swarm.sim.coverage_onboard import HORIZON_TICKS, predicted_positions
 from swarm.sim.links import Links, heard_slots
 from swarm.sim.steering_mlp import local_command, to_world
 
 
-@numba.njit(cache=True)
+def _cell_sums(
+    own: np.ndarray,
+    others: np.ndarray,
+    valid: np.ndarray,
+    points: np.ndarray,
+    weights: np.ndarray,
+    radius_sq: float,
+    out: np.ndarray,
+) -> None:
+    batch, count = own.shape[0], own.shape[1]
+    slots = others.shape[2]
+    for row in numba.prange(batch * count):  # one robot's cell a row: rows share nothing
+        b, i = row // count, row % count
+        px, py = own[b, i, 0], own[b, i, 1]
+        mass, moment_x, moment_y = 0.0, 0.0, 0.0
+        for g in range(points.shape[0]):
+            qx, qy = points[g, 0], points[g, 1]
+            dx, dy = qx - px, qy - py
+            mine = dx * dx + dy * dy
+            if mine > radius_sq:
+                continue
+            inside = True
+            for k in range(slots):
+                if not valid[b, i, k]:
+                    continue
+                ex, ey = qx - others[b, i, k, 0], qy - others[b, i, k, 1]
+                if ex * ex + ey * ey < mine:
+                    inside = False
+                    break
+            if inside:
+                mass += weights[g]
+                moment_x += weights[g] * qx
+                moment_y += weights[g] * qy
+        out[b, i, 0] = mass
+        out[b, i, 1] = moment_x
+        out[b, i, 2] = moment_y
+
+
+_cell_sums_serial, _cell_sums_parallel = kernels.jit_serial_and_parallel(_cell_sums)
+
+PARALLEL_MIN_CELL_POINTS = int(os.environ.get("SWARM_PARALLEL_MIN_CELL_POINTS", 1_000_000))
+"""Robots' cells times quadrature points from which :func:`cell_sums` runs on numba's threads. A cell
+costs about as much as thousands of robots of the kinematic kernels (``PARALLEL_MIN_ROBOTS``), so
+threads pay off far sooner: ``bench/results/coverage_threads.md``. Threads never change a bit (each
+cell is summed by one thread, in the serial order)."""
+
+
 def cell_sums(
     own: np.ndarray,
     others: np.ndarray,
@@ -58,34 +107,11 @@ def cell_sums(
 ) -> None:
     """``out (B, N, 3)``: mass and first moments ``(M, M x, M y)`` of robot i's cell, the quadrature
     points at most ``sqrt(radius_sq)`` from ``own (B, N, 2)`` and no farther from it than from any
-    ``others[b, i, k]`` with ``valid[b, i, k]`` (``(B, N, K, 2)``, ``(B, N, K)``)."""
-    batch, count = own.shape[0], own.shape[1]
-    slots = others.shape[2]
-    for b in range(batch):
-        for i in range(count):
-            px, py = own[b, i, 0], own[b, i, 1]
-            mass, moment_x, moment_y = 0.0, 0.0, 0.0
-            for g in range(points.shape[0]):
-                qx, qy = points[g, 0], points[g, 1]
-                dx, dy = qx - px, qy - py
-                mine = dx * dx + dy * dy
-                if mine > radius_sq:
-                    continue
-                inside = True
-                for k in range(slots):
-                    if not valid[b, i, k]:
-                        continue
-                    ex, ey = qx - others[b, i, k, 0], qy - others[b, i, k, 1]
-                    if ex * ex + ey * ey < mine:
-                        inside = False
-                        break
-                if inside:
-                    mass += weights[g]
-                    moment_x += weights[g] * qx
-                    moment_y += weights[g] * qy
-            out[b, i, 0] = mass
-            out[b, i, 1] = moment_x
-            out[b, i, 2] = moment_y
+    ``others[b, i, k]`` with ``valid[b, i, k]`` (``(B, N, K, 2)``, ``(B, N, K)``). Compiled, on threads
+    from ``PARALLEL_MIN_CELL_POINTS``."""
+    work = own.shape[0] * own.shape[1] * points.shape[0]
+    kernel = _cell_sums_parallel if work >= PARALLEL_MIN_CELL_POINTS else _cell_sums_serial
+    kernel(own, others, valid, points, weights, radius_sq, out)
 
 
 def centroid_targets(sums: np.ndarray, fallback: np.ndarray) -> np.ndarray:
