@@ -93,6 +93,7 @@ runs = 0
 obstacles = Capsules([ObstacleSpec(kind="disc", centre=(0.0, 0.0), radius_m=0.2)])
 for threshold in (1 << 62, 0):  # serial, then every kernel threaded
     kernels.PARALLEL_MIN_ROBOTS = threshold
+    coverage_controllers.PARALLEL_MIN_CELL_POINTS = threshold
     for safety_count in (1, 2, count):  # the safety filter: alone, a pair, a crowd, with an obstacle
         safe = SafetyFilter(robot, SafetyParams(noise_m=0.01, dropout=0.2), obstacles)
         args = ControllerArgs(robot=robot, robot_count=safety_count)

@@ -107,6 +107,60 @@ def test_a_tie_point_belongs_to_every_cell_it_is_nearest_to_in_both_forms():
     assert np.isclose(sums[0, 0, 0] + sums[0, 1, 0], 1.0 + 8 / 64)  # the tie column counted twice
 
 
+def _brute_force_sums(own, others, valid, points, weights, radius_sq):
+    """The definition, point by point: a point is robot i's when within the radius and no valid other is
+    strictly nearer; its weight and moments added in the points' order."""
+    out = np.zeros((*own.shape[:2], 3))
+    for b, i in np.ndindex(*own.shape[:2]):
+        dx, dy = points[:, 0] - own[b, i, 0], points[:, 1] - own[b, i, 1]
+        mine = dx * dx + dy * dy
+        inside = mine <= radius_sq
+        for k in np.flatnonzero(valid[b, i]):
+            ex, ey = points[:, 0] - others[b, i, k, 0], points[:, 1] - others[b, i, k, 1]
+            inside &= ~(ex * ex + ey * ey < mine)
+        for g in np.flatnonzero(inside):
+            out[b, i, 0] += weights[g]
+            out[b, i, 1] += weights[g] * points[g, 0]
+            out[b, i, 2] += weights[g] * points[g, 1]
+    return out
+
+
+@pytest.mark.parametrize("case", range(40))
+def test_the_cell_kernel_sums_exactly_the_points_of_the_definition(case):
+    """``cell_sums`` tests only the points its windows pick and the others that could be nearer; its sums
+    must be the definition's bit for bit, on starts snapped to the grid (ties on cell boundaries, robots
+    on one spot), far from the origin, swarms of one and two, others unheard, a radius cut, and points
+    in another order than grid rows (shuffled, scattered, rows with a gap)."""
+    rng = np.random.default_rng(case)
+    count = [1, 2, 3, 7, 12][case % 5]
+    offset = [0.0, 0.0, 1e4, 1e6][case // 10 % 4]
+    layout = case % 4
+    grid = np.stack(np.meshgrid(np.linspace(-2, 2, 21), np.linspace(-2, 2, 17)), -1).reshape(-1, 2)
+    points = {
+        0: grid,
+        1: grid[np.abs(grid[:, 0] - 0.3) > 0.5],  # every row with a gap
+        2: grid[rng.permutation(len(grid))],
+        3: rng.uniform(-2, 2, (300, 2)),
+    }[layout] + offset
+    weights = rng.random(len(points))
+    weights /= weights.sum()
+    own = rng.uniform(-2.5, 2.5, (3, count, 2))
+    if case % 2 == 0:  # on the grid's lines: points equidistant from two robots
+        own = np.round(own / 0.4) * 0.4
+    if case % 3 == 0 and count > 1:
+        own[:, 1] = own[:, 0]  # two robots on one spot
+    own += offset
+    others = np.broadcast_to(own[:, None], (3, count, count, 2)).copy()
+    valid = (rng.random((3, count, count)) < 0.8) & ~np.eye(count, dtype=bool)
+    for radius_sq in (math.inf, 0.8):
+        sums = np.empty((3, count, 3))
+        cell_sums(own, others, valid, points, weights, radius_sq, sums)
+        expected = _brute_force_sums(own, others, valid, points, weights, radius_sq)
+        np.testing.assert_array_equal(sums, expected)
+        if radius_sq == math.inf:  # a point is at least its nearest robot's, whoever that one heard
+            assert np.all(expected[..., 0].sum(axis=1) >= 1.0 - 1e-9)
+
+
 def test_an_empty_cell_heads_for_the_density_centroid():
     square = section(grid_per_axis=8, gaussians=[{"mean": [0.5, 0.0], "sigma_m": 0.4}])
     points, weights = square.quadrature()

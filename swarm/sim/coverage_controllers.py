@@ -48,40 +48,153 @@ from swarm.sim.coverage_onboard import HORIZON_TICKS, predicted_positions
 from swarm.sim.links import Links, heard_slots
 from swarm.sim.steering_mlp import local_command, to_world
 
+PRUNE_RELATIVE = 1.0 + 1e-6
+PRUNE_ABSOLUTE_M2 = 1e-12
+"""The margin of :func:`cell_sums`'s scan over the others: an other ``d`` from the robot is compared with
+a point ``r`` from it while ``d^2 <= 4 r^2 PRUNE_RELATIVE + PRUNE_ABSOLUTE_M2``. Beyond, ``d > 2 r (1 +
+5e-7)``, so the other is more than ``r (1 + 1e-6)`` from the point: farther, by a margin rounding never
+crosses."""
+
+ROW_SLACK = 1e-12
+"""The margin of :func:`cell_sums`'s window on a grid row, relative to the squared lengths involved
+(about 50 times the rounding of the distances it stands for): a window only picks the points to test,
+so a wide one costs time, never a bit."""
+
+
+@numba.njit(cache=True)
+def _row_window(
+    up: float,
+    px: float,
+    py: float,
+    gap_sq: np.ndarray,
+    near_x: np.ndarray,
+    near_y: np.ndarray,
+    slack_sq: np.ndarray,
+    radius_sq: float,
+) -> tuple[float, float]:
+    """``(low, high)``: the x where the grid row ``up`` above the robot at ``(px, py)`` can meet its cell:
+    the intersection of the disc and of the half-planes ``2 (x - px) ax + 2 up ay <= |a|^2 + slack`` of
+    the others at ``a`` from the robot (nearest first); ``low > high``: nowhere. An other more than twice
+    as far from the robot as every point of the window so far cuts none of it (triangle inequality), so
+    the scan ends there."""
+    low, high = -math.inf, math.inf
+    if radius_sq < math.inf:
+        room = radius_sq * (1.0 + 1e-9) + 1e-12 - up * up
+        if room < 0.0:
+            return math.inf, -math.inf
+        low, high = px - math.sqrt(room) - 1e-9, px + math.sqrt(room) + 1e-9
+    for k in range(gap_sq.shape[0]):
+        if high < math.inf and low > -math.inf:
+            farthest_sq = max((low - px) ** 2, (high - px) ** 2) + up * up
+            if gap_sq[k] > 4.0 * farthest_sq * PRUNE_RELATIVE + PRUNE_ABSOLUTE_M2:
+                break
+        ax, ay = near_x[k] - px, near_y[k] - py
+        limit = gap_sq[k] - 2.0 * up * ay + slack_sq[k]
+        if ax > 0.0:
+            high = min(high, px + limit / (2.0 * ax))
+        elif ax < 0.0:
+            low = max(low, px + limit / (2.0 * ax))
+        elif limit < 0.0:
+            return math.inf, -math.inf
+        if low > high:
+            return low, high
+    return low, high
+
 
 def _cell_sums(
     own: np.ndarray,
     others: np.ndarray,
     valid: np.ndarray,
     points: np.ndarray,
+    xs: np.ndarray,
+    row_start: np.ndarray,
+    rows_ascending: bool,
     weights: np.ndarray,
     radius_sq: float,
     out: np.ndarray,
 ) -> None:
     batch, count = own.shape[0], own.shape[1]
     slots = others.shape[2]
+    rows = row_start.shape[0] - 1
+    row_y = np.empty(rows)
+    for r in range(rows):
+        row_y[r] = points[row_start[r], 1]
+    low_x, high_x = points[:, 0].min(), points[:, 0].max()
+    low_y, high_y = points[:, 1].min(), points[:, 1].max()
     for row in numba.prange(batch * count):  # one robot's cell a row: rows share nothing
         b, i = row // count, row % count
         px, py = own[b, i, 0], own[b, i, 1]
-        mass, moment_x, moment_y = 0.0, 0.0, 0.0
-        for g in range(points.shape[0]):
-            qx, qy = points[g, 0], points[g, 1]
-            dx, dy = qx - px, qy - py
-            mine = dx * dx + dy * dy
-            if mine > radius_sq:
-                continue
-            inside = True
-            for k in range(slots):
-                if not valid[b, i, k]:
-                    continue
-                ex, ey = qx - others[b, i, k, 0], qy - others[b, i, k, 1]
-                if ex * ex + ey * ey < mine:
-                    inside = False
+        extent = max(abs(low_x - px), abs(high_x - px)) + max(abs(low_y - py), abs(high_y - py))
+        # the valid others, nearest first
+        known = 0
+        for k in range(slots):
+            known += valid[b, i, k]
+        gap_sq = np.empty(known)
+        near_x = np.empty(known)
+        near_y = np.empty(known)
+        m = 0
+        for k in range(slots):
+            if valid[b, i, k]:
+                near_x[m], near_y[m] = others[b, i, k, 0], others[b, i, k, 1]
+                gap_sq[m] = (near_x[m] - px) ** 2 + (near_y[m] - py) ** 2
+                m += 1
+        order = np.argsort(gap_sq, kind="mergesort")
+        gap_sq, near_x, near_y = gap_sq[order], near_x[order], near_y[order]
+        slack_sq = ROW_SLACK * (extent + np.sqrt(gap_sq)) ** 2 + 1e-300
+        # each row's window; rows sorted by y: the rows that meet the (convex) cell are one run around
+        # the robot's y, so the scan goes outward from it and stops at the first row met by none
+        low = np.full(rows, math.inf)
+        high = np.full(rows, -math.inf)
+        if rows_ascending:
+            middle = np.searchsorted(row_y, py)
+            first, last = middle, middle
+            for r in range(middle, rows):
+                low[r], high[r] = _row_window(
+                    row_y[r] - py, px, py, gap_sq, near_x, near_y, slack_sq, radius_sq
+                )
+                last = r + 1
+                if low[r] > high[r]:
                     break
-            if inside:
-                mass += weights[g]
-                moment_x += weights[g] * qx
-                moment_y += weights[g] * qy
+            for r in range(middle - 1, -1, -1):
+                low[r], high[r] = _row_window(
+                    row_y[r] - py, px, py, gap_sq, near_x, near_y, slack_sq, radius_sq
+                )
+                first = r
+                if low[r] > high[r]:
+                    break
+        else:
+            first, last = 0, rows
+            for r in range(rows):
+                low[r], high[r] = _row_window(
+                    row_y[r] - py, px, py, gap_sq, near_x, near_y, slack_sq, radius_sq
+                )
+        mass, moment_x, moment_y = 0.0, 0.0, 0.0
+        for r in range(first, last):  # in the points' order: the sums are the plain loop's, bit for bit
+            if low[r] > high[r]:
+                continue
+            start, stop = row_start[r], row_start[r + 1]
+            widen = 1e-9 * (1.0 + abs(low[r]) + abs(high[r])) if high[r] - low[r] < math.inf else 0.0
+            begin = start + np.searchsorted(xs[start:stop], low[r] - widen)
+            end = start + np.searchsorted(xs[start:stop], high[r] + widen, side="right")
+            for g in range(begin, end):  # the exact test: no valid other strictly nearer
+                qx, qy = points[g, 0], points[g, 1]
+                dx, dy = qx - px, qy - py
+                mine = dx * dx + dy * dy
+                if mine > radius_sq:
+                    continue
+                reach_sq = 4.0 * mine * PRUNE_RELATIVE + PRUNE_ABSOLUTE_M2
+                inside = True
+                for k in range(known):
+                    if gap_sq[k] > reach_sq:
+                        break
+                    ex, ey = qx - near_x[k], qy - near_y[k]
+                    if ex * ex + ey * ey < mine:
+                        inside = False
+                        break
+                if inside:
+                    mass += weights[g]
+                    moment_x += weights[g] * qx
+                    moment_y += weights[g] * qy
         out[b, i, 0] = mass
         out[b, i, 1] = moment_x
         out[b, i, 2] = moment_y
@@ -96,6 +209,13 @@ threads pay off far sooner: ``bench/results/coverage_threads.md``. Threads never
 cell is summed by one thread, in the serial order)."""
 
 
+def point_rows(points: np.ndarray) -> np.ndarray:
+    """``(R + 1,)`` where each row of ``points (G, 2)`` starts: a row is a run of points of one y with x
+    increasing (the quadrature's grid lines; any other order only makes more, shorter rows)."""
+    same_row = (points[1:, 1] == points[:-1, 1]) & (points[1:, 0] > points[:-1, 0])
+    return np.concatenate([[0], np.flatnonzero(~same_row) + 1, [len(points)]]).astype(np.int64)
+
+
 def cell_sums(
     own: np.ndarray,
     others: np.ndarray,
@@ -107,11 +227,23 @@ def cell_sums(
 ) -> None:
     """``out (B, N, 3)``: mass and first moments ``(M, M x, M y)`` of robot i's cell, the quadrature
     points at most ``sqrt(radius_sq)`` from ``own (B, N, 2)`` and no farther from it than from any
-    ``others[b, i, k]`` with ``valid[b, i, k]`` (``(B, N, K, 2)``, ``(B, N, K)``). Compiled, on threads
-    from ``PARALLEL_MIN_CELL_POINTS``."""
+    ``others[b, i, k]`` with ``valid[b, i, k]`` (``(B, N, K, 2)``, ``(B, N, K)``), summed in the points'
+    order.
+
+    Each point of the cell is tested against every other that could be nearer; which points are tested
+    is narrowed exactly (the margins ``ROW_SLACK``, ``PRUNE_*``): per grid row (:func:`point_rows`), the
+    window where the row meets the intersection of the robot's half-planes, and per point, the others
+    within twice its distance to the robot. Compiled, on threads from ``PARALLEL_MIN_CELL_POINTS``."""
+    if len(points) == 0:
+        out[...] = 0.0
+        return
     work = own.shape[0] * own.shape[1] * points.shape[0]
     kernel = _cell_sums_parallel if work >= PARALLEL_MIN_CELL_POINTS else _cell_sums_serial
-    kernel(own, others, valid, points, weights, radius_sq, out)
+    xs = np.ascontiguousarray(points[:, 0])
+    row_start = point_rows(points)
+    row_y = points[row_start[:-1], 1]
+    rows_ascending = bool(np.all(row_y[1:] > row_y[:-1]))
+    kernel(own, others, valid, points, xs, row_start, rows_ascending, weights, radius_sq, out)
 
 
 def centroid_targets(sums: np.ndarray, fallback: np.ndarray) -> np.ndarray:
