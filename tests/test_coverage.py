@@ -414,6 +414,25 @@ def test_lloyd_predict_extrapolates_over_at_most_its_horizon():
     np.testing.assert_allclose(predicted_positions(table, 0.1), [[0.5, 0.0], [0.3, 1.0]], rtol=0, atol=1e-15)
 
 
+@pytest.mark.parametrize("horizon_ticks", [0.0, 1.0, HORIZON_TICKS, math.inf])
+def test_the_batched_prediction_is_the_on_board_one_bit_for_bit(horizon_ticks):
+    """The compiled prediction of ``lloyd_predict`` (batched) against the numpy one its robots run
+    (``predicted_positions``): unknown entries, fresh ones, old ones past the horizon, targets at the
+    position itself, a millimetre away and far, far from the origin."""
+    from swarm.sim.coverage_controllers import _predicted_positions
+
+    rng = np.random.default_rng(11)
+    table = np.zeros((4, 6, 6, 5))
+    table[..., 0] = rng.choice([0.0, 1.0, 2.0, 3.0, 7.0, 40.0], table.shape[:3])
+    table[..., 1:3] = rng.uniform(-3, 3, (*table.shape[:3], 2))
+    table[1, ..., 1:3] += [1e6, -1e6]
+    gap = rng.choice([0.0, 1e-3, 0.01, 5.0], (*table.shape[:3], 1)) * rng.normal(size=(*table.shape[:3], 2))
+    table[..., 3:5] = table[..., 1:3] + gap
+    batched = np.empty((*table.shape[:3], 2))
+    _predicted_positions(table, 0.025, horizon_ticks, batched)
+    np.testing.assert_array_equal(batched, predicted_positions(table, 0.025, horizon_ticks))
+
+
 def test_lloyd_predict_with_a_horizon_of_zero_drives_as_lloyd_flood():
     """``horizon_ticks: 0`` places every known robot where it was sent from: on a line of 8 (entries up
     to 7 ticks old) the swarm moves bit for bit as ``lloyd_flood``'s, while the default horizon does

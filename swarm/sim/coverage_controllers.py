@@ -44,8 +44,8 @@ from swarm.core.robot import RobotParams
 from swarm.core.tasks.coverage import CoverageSection, density_centroid
 from swarm.sim import kernels
 from swarm.sim.coverage_gnn import CoverageGnnWeights, coverage_features, region_scale_m
-from swarm.sim.coverage_onboard import HORIZON_TICKS, predicted_positions
-from swarm.sim.links import Links, heard_slots
+from swarm.sim.coverage_onboard import HORIZON_TICKS
+from swarm.sim.links import Links
 from swarm.sim.steering_mlp import local_command, to_world
 
 PRUNE_RELATIVE = 1.0 + 1e-6
@@ -246,6 +246,55 @@ def cell_sums(
     kernel(own, others, valid, points, xs, row_start, rows_ascending, weights, radius_sq, out)
 
 
+@numba.njit(cache=True)
+def _merge_tables(
+    inbox: np.ndarray, index: np.ndarray, positions: np.ndarray, fields: int, memory: np.ndarray
+) -> None:
+    """``memory (B, N, N, fields)``: :meth:`LloydFlood.merge` from ``inbox (B, >= N, N fields)``, the
+    heard senders ``index (B, N, S)`` (-1: none) and ``positions (B, N, 2)``."""
+    batch, count, slots = index.shape[0], index.shape[1], index.shape[2]
+    for b in range(batch):
+        for i in range(count):
+            for e in range(count):
+                age = inbox[b, i, e * fields]
+                memory[b, i, e, 0] = age + 1.0 if age > 0.0 else 0.0
+                for f in range(1, fields):
+                    memory[b, i, e, f] = inbox[b, i, e * fields + f]
+            memory[b, i, i, 0] = 1.0
+            memory[b, i, i, 1] = positions[b, i, 0]
+            memory[b, i, i, 2] = positions[b, i, 1]
+            for slot in range(slots):
+                sender = index[b, i, slot]
+                if sender < 0:
+                    continue
+                for e in range(count):
+                    theirs = inbox[b, sender, e * fields]
+                    if theirs <= 0.0:
+                        continue
+                    age = theirs + 1.0
+                    if memory[b, i, e, 0] == 0.0 or age < memory[b, i, e, 0]:
+                        memory[b, i, e, 0] = age
+                        for f in range(1, fields):
+                            memory[b, i, e, f] = inbox[b, sender, e * fields + f]
+
+
+@numba.njit(cache=True)
+def _predicted_positions(table: np.ndarray, step_m: float, horizon_ticks: float, out: np.ndarray) -> None:
+    """``out (B, N, N, 2)``: :func:`swarm.sim.coverage_onboard.predicted_positions` of ``table (B, N, N,
+    5)``, the same operations in the same order (its twin, bit for bit)."""
+    for b in range(table.shape[0]):
+        for i in range(table.shape[1]):
+            for e in range(table.shape[2]):
+                ticks_old = min(max(table[b, i, e, 0] - 1.0, 0.0), horizon_ticks)
+                toward_x = table[b, i, e, 3] - table[b, i, e, 1]
+                toward_y = table[b, i, e, 4] - table[b, i, e, 2]
+                gap_m = math.sqrt(toward_x * toward_x + toward_y * toward_y)
+                reach_m = min(gap_m, ticks_old * step_m)
+                scale = reach_m / gap_m if gap_m > 0.0 else 0.0
+                out[b, i, e, 0] = table[b, i, e, 1] + toward_x * scale
+                out[b, i, e, 1] = table[b, i, e, 2] + toward_y * scale
+
+
 def centroid_targets(sums: np.ndarray, fallback: np.ndarray) -> np.ndarray:
     """``(..., 2)`` each cell's centroid ``(M x, M y) / M``, ``fallback`` where the cell has no mass."""
     mass = sums[..., 0:1]
@@ -363,17 +412,11 @@ class LloydFlood(_Coverage):
         older, its own position fresh, and each heard neighbour's entries one hop older where strictly
         fresher (slot order; the robot's own table first)."""
         batch, count, fields = poses.shape[0], poses.shape[1], self.fields
-        memory = inbox[:, :count].reshape(batch, count, count, fields).copy()
-        memory[..., 0] = np.where(memory[..., 0] > 0.0, memory[..., 0] + 1.0, 0.0)
-        own = np.arange(count)
-        memory[:, own, own, 0] = 1.0
-        memory[:, own, own, 1:3] = poses[..., :2]
-        for valid, messages in heard_slots(inbox, heard):
-            theirs = messages.reshape(batch, count, count, fields)
-            age = np.where(theirs[..., 0] > 0.0, theirs[..., 0] + 1.0, 0.0)
-            fresher = valid[..., None] & (age > 0.0) & ((memory[..., 0] == 0.0) | (age < memory[..., 0]))
-            memory[fresher, 0] = age[fresher]
-            memory[fresher, 1:] = theirs[fresher, 1:]
+        memory = np.empty((batch, count, count, fields))
+        index = np.ascontiguousarray(heard.index, dtype=np.int64)
+        _merge_tables(
+            np.ascontiguousarray(inbox), index, np.ascontiguousarray(poses[..., :2]), fields, memory
+        )
         return memory
 
     def update_targets(self, poses: np.ndarray, inbox: np.ndarray, heard: Links) -> np.ndarray:
@@ -422,7 +465,10 @@ class LloydPredict(LloydFlood):
     def known_positions(self, memory: np.ndarray) -> np.ndarray:
         """``(B, N, N, 2)``: every entry where its target takes it in the entry's age, at most
         ``horizon_ticks`` of it (:func:`swarm.sim.coverage_onboard.predicted_positions`)."""
-        return predicted_positions(memory, self.robot.v_max_mps * self.control_period_s, self.horizon_ticks)
+        positions = np.empty((*memory.shape[:3], 2))
+        step_m = self.robot.v_max_mps * self.control_period_s
+        _predicted_positions(np.ascontiguousarray(memory), step_m, self.horizon_ticks, positions)
+        return positions
 
     def update_targets(self, poses: np.ndarray, inbox: np.ndarray, heard: Links) -> np.ndarray:
         """``lloyd_flood``'s, among the predicted positions; each robot's own entry carries the target it
