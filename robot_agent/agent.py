@@ -78,6 +78,7 @@ import zenoh
 from swarm.core import safety, tasks, topologies
 from swarm.core.exit_codes import ExitCode
 from swarm.core.faults import DROPPED, HEARD, LOST, LinkFaults, message_max_age_ticks, select_message
+from swarm.core.files import write_atomically
 from swarm.core.robot import RobotParams
 from swarm.runtime import wire
 from swarm.runtime.ticks import ACCEPT, OLD, PoseWindow, step_s_of
@@ -1006,6 +1007,4 @@ class RobotAgent:
         if self.options.log_dir is None:
             return
         path = Path(self.options.log_dir) / f"agent_{self.robot}.json"
-        temporary = path.with_suffix(".json.tmp")
-        temporary.write_text(json.dumps(self.record, indent=2) + "\n")
-        os.replace(temporary, path)
+        write_atomically(path, json.dumps(self.record, indent=2) + "\n")

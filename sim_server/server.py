@@ -43,7 +43,6 @@ import itertools
 import json
 import logging
 import math
-import os
 import signal
 import threading
 import time
@@ -58,6 +57,7 @@ from sim_server.physics import PhysicsWorld
 from sim_server.radio import Radio
 from swarm.core.exit_codes import ExitCode
 from swarm.core.faults import LinkFaults, message_max_age_ticks, tick_of
+from swarm.core.files import write_atomically
 from swarm.core.obstacles import Capsules
 from swarm.core.robot import controlled_point, saturate_wheels
 from swarm.runtime import wire
@@ -859,10 +859,7 @@ class SimServer:
             stats.update(self.stats, agent_events=list(self.stats["agent_events"]))
             stats["silent_spans"] = [*self.stats["silent_spans"], *self._open_silent_spans()]
         stats["per_robot"] = self._per_robot()
-        path = self.options.out_dir / "server_stats.json"
-        temporary = path.with_suffix(".json.tmp")
-        temporary.write_text(json.dumps(stats, indent=2) + "\n")
-        os.replace(temporary, path)
+        write_atomically(self.options.out_dir / "server_stats.json", json.dumps(stats, indent=2) + "\n")
         self._stats_written_s = time.perf_counter()
 
 

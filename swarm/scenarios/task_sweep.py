@@ -27,7 +27,6 @@ from __future__ import annotations
 import csv
 import json
 import math
-import os
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
@@ -37,6 +36,7 @@ import numpy as np
 
 from swarm.core import graphs, topologies
 from swarm.core.faults import LinkFaults
+from swarm.core.files import write_atomically
 from swarm.core.robot import RobotParams
 from swarm.core.tasks import registry
 from swarm.scenarios.scenario import ScenarioError
@@ -359,7 +359,7 @@ def run_task_sweep(
                     config, topology, count, controller, loss, on_progress, starts[topology, count]
                 )
                 finished = (name, cell)
-                _write_atomically(out_dir / "cells" / name, json.dumps(cell) + "\n")
+                write_atomically(out_dir / "cells" / name, json.dumps(cell) + "\n")
             rows[name] = summarize_cell(cell, config.cells.columns)
             finished = None
             if bar is not None:
@@ -378,16 +378,6 @@ def run_task_sweep(
     write_tables(out_dir, config, list(rows.values()))
     plot_task_sweep(out_dir / "sweep.png", config, list(rows.values()))
     return list(rows.values())
-
-
-def _write_atomically(path: Path, text: str) -> None:
-    """``path`` holds ``text`` whole or is not there: a Ctrl-C never leaves half a cell file."""
-    partial = path.with_name(path.name + ".partial")
-    try:
-        partial.write_text(text)
-        os.replace(partial, path)
-    finally:
-        partial.unlink(missing_ok=True)
 
 
 def write_tables(out_dir: Path, config: TaskSweepConfig, rows: list[dict], note: str = "") -> None:
