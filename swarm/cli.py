@@ -272,10 +272,8 @@ def _task_sweep(args: argparse.Namespace, data: dict) -> int:
     """``swarm sweep --task formation`` (or a config with ``task:``): swarm.scenarios.task_sweep."""
     from swarm.scenarios.task_sweep import TaskSweepConfig, run_task_sweep
 
-    rendezvous_only = {"--gain": args.gain, "--workers": args.workers}
-    for option, value in rendezvous_only.items():
-        if value is not None:
-            raise UsageError(f"{option}: a rendezvous sweep setting; a task sweep has none")
+    if args.gain is not None:
+        raise UsageError("--gain: a rendezvous sweep setting; a task sweep has none")
     if args.task is not None:
         data = {**data, "task": args.task}
     source = args.config or "command line"
@@ -293,7 +291,9 @@ def _task_sweep(args: argparse.Namespace, data: dict) -> int:
     config = config.with_overrides({key: value for key, value in overrides.items() if value is not None})
     _check_out_dir("--out", args.out)
     out_dir = Path(args.out)
-    rows = run_task_sweep(config, out_dir, progress=not args.quiet, resume=args.resume)
+    rows = run_task_sweep(
+        config, out_dir, progress=not args.quiet, resume=args.resume, workers=args.workers or 1
+    )
     failed = [row for row in rows if row["success_rate"] < 1.0]
     print(
         f"sweep {config.task}: {len(rows)} cells, table in {out_dir / 'sweep.md'},"
@@ -343,7 +343,6 @@ def _task_evaluate(args: argparse.Namespace, task: str) -> int:
         "--reuse": args.reuse,
         "--curve-sizes": args.curve_sizes,
         "--curve-starts": args.curve_starts,
-        "--workers": args.workers,
     }
     for option, value in rendezvous_only.items():
         if value is not None:
@@ -363,7 +362,7 @@ def _task_evaluate(args: argparse.Namespace, task: str) -> int:
     )
     _check_out_dir("--out", args.out)
     out_dir = Path(args.out)
-    rows = run_task_sweep(config, out_dir, progress=not args.quiet)
+    rows = run_task_sweep(config, out_dir, progress=not args.quiet, workers=args.workers or 1)
     failed = [row for row in rows if row["controller"] in entry.learned and row["success_rate"] < 1.0]
     table, plot = out_dir / "sweep.md", out_dir / "sweep.png"
     print(f"evaluate {task}: {len(rows)} cells, table in {table}, plot {plot}")
@@ -588,7 +587,10 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--v-max", type=positive_float, help="wheel-speed limit (m/s)")
     sweep.add_argument("--out", default="runs/sweep", help="output directory (default: runs/sweep)")
     sweep.add_argument(
-        "--workers", type=positive_int, help="processes each cell's starts are split over (default 1)"
+        "--workers",
+        type=positive_int,
+        help="processes the starts are split over (default 1; the results do not depend on it): a"
+        " rendezvous sweep splits each cell's starts, a task sweep every cell's chunks of starts",
     )
     sweep.add_argument(
         "--resume",

@@ -248,6 +248,82 @@ def test_a_ctrl_c_between_a_cells_file_and_its_row_keeps_the_cell_in_the_tables(
         assert sorted(row["controller"] for row in csv.DictReader(file)) == sorted(calls[:2])
 
 
+@pytest.mark.parametrize("task", SWEPT)
+def test_worker_processes_write_the_cells_one_process_writes(task, tmp_path):
+    """``--workers``: chunks of every cell in several processes. The oracle is the one-process sweep:
+    every cell file and both tables byte for byte, lossy cells included (chunk c draws its losses from
+    seed c, so a chunk run under another seed or put back in another order shows)."""
+    config = _small(task, seeds=5, chunk_starts=2, packet_losses=[0.0, 0.5])  # 3 chunks a cell
+    one, two = tmp_path / "one", tmp_path / "two"
+    task_sweep.run_task_sweep(config, one, progress=False)
+    task_sweep.run_task_sweep(config, two, progress=False, workers=2)
+    names = sorted(path.name for path in (one / "cells").iterdir())
+    assert names == sorted(path.name for path in (two / "cells").iterdir())
+    assert any("loss0.5" in name for name in names)
+    for name in names:
+        assert (one / "cells" / name).read_bytes() == (two / "cells" / name).read_bytes(), name
+    for table in ("sweep.md", "sweep.csv", "sweep_config.json"):
+        assert (one / table).read_bytes() == (two / table).read_bytes(), table
+
+
+@pytest.mark.slow
+def test_ctrl_c_in_worker_processes_keeps_the_finished_cells_and_leaves_no_worker(tmp_path):
+    """``--workers 2`` interrupted after its first cell by a Ctrl-C as a terminal sends it (to the whole
+    process group, workers included): exit 130, one line and no worker's traceback, the finished
+    cells' tables, and every worker process (found from outside, by parent pid in /proc) gone."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    def children(pid: int) -> set[int]:
+        found = set()
+        for stat in Path("/proc").glob("[0-9]*/stat"):
+            try:
+                fields = stat.read_text().rsplit(")", 1)[1].split()
+            except (OSError, IndexError):
+                continue
+            if int(fields[1]) == pid:
+                found.add(int(stat.parent.name))
+        return found
+
+    out = tmp_path / "sweep"
+    command = [sys.executable, "-m", "swarm.cli", "sweep", "--task", "formation", "--topologies", "cycle"]
+    command += ["--sizes", "4", "50", "100", "--seeds", "100", "--workers", "2", "--out", str(out), "--quiet"]
+
+    def own_group() -> None:  # a terminal's foreground group, even when the suite runs in the background
+        os.setpgrp()
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+    run = subprocess.Popen(command, preexec_fn=own_group, stderr=subprocess.PIPE, text=True)
+    workers: set[int] = set()
+    try:
+        give_up = time.monotonic() + 300
+        while not list((out / "cells").glob("*.json")) and time.monotonic() < give_up and run.poll() is None:
+            workers |= children(run.pid)
+            time.sleep(0.05)
+        workers |= children(run.pid)
+        assert list((out / "cells").glob("*.json")) and run.poll() is None
+        assert len(workers) >= 2  # the pool's processes (and the resource tracker)
+        os.killpg(run.pid, signal.SIGINT)
+        _, stderr = run.communicate(timeout=120)
+    finally:
+        if run.poll() is None:
+            run.kill()
+    assert run.returncode == 130, stderr
+    assert stderr.strip() == "swarm sweep: interrupted", stderr
+    table = (out / "sweep.md").read_text()
+    done = len(list((out / "cells").glob("*.json")))
+    assert f"Interrupted after {done} of 9 cells." in table
+    assert table.count("| cycle |") == done
+    give_up = time.monotonic() + 30
+    while any(Path(f"/proc/{pid}").exists() for pid in workers) and time.monotonic() < give_up:
+        time.sleep(0.1)
+    alive = [pid for pid in workers if Path(f"/proc/{pid}").exists()]
+    assert not alive, f"worker processes left running: {alive}"
+
+
 def test_starts_that_cannot_be_drawn_are_refused_before_any_cell_runs(tmp_path, capsys):
     """A disk radius that connects no start of the last cell: exit 2 naming it, and no cell was run."""
     from swarm.cli import main
@@ -283,7 +359,8 @@ def test_evaluate_runs_a_task_policy_beside_the_experts_and_baselines(tmp_path, 
     assert sorted(rows) == ["capt", "capt_flood", "capt_gnn"]
     assert json.loads((tmp_path / "a" / "sweep_config.json").read_text())["model"] == shipped
     silent = str(_silent_formation_policy(tmp_path / "silent.npz"))
-    assert main(["evaluate", silent, *cells, "--out", str(tmp_path / "b")]) == 1
+    # in two worker processes, which load the file given themselves
+    assert main(["evaluate", silent, *cells, "--workers", "2", "--out", str(tmp_path / "b")]) == 1
     assert "model not always met: line N=4: 0.0%" in capsys.readouterr().out
     rows = {row["controller"]: row for row in csv.DictReader((tmp_path / "b" / "sweep.csv").open())}
     assert float(rows["capt_gnn"]["success_rate"]) == 0.0 and float(rows["capt_flood"]["success_rate"]) == 1.0

@@ -15,6 +15,8 @@ entry (:class:`swarm.core.tasks.registry.SweepCells`) is measured by the same co
 3. **Runs.** Chunks of ``chunk_starts`` starts in the kinematic engine (chunk c draws its packet
    losses from seed c), for the task's ``duration_s`` or until every start has held the task's
    success rule for ``hold_s`` (``SweepCells.held``). Positions every ``sample_every_ticks`` ticks.
+   With ``workers`` (``--workers``) the chunks run in that many processes; a chunk's result depends
+   only on its starts and its seed, so every cell file is the one a single process writes.
 4. **Judging.** The task's own ``outcome`` on each start's trajectory (what ``swarm run`` reports for
    one run): success, its time, the bound or reference, the task's metrics.
 5. **Tables and plot.** ``sweep.csv`` / ``sweep.md``: success and the median and p95 over the starts of
@@ -27,6 +29,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import signal
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
@@ -217,6 +220,33 @@ def run_chunk(
     return np.asarray(ticks) * dt, np.stack(frames)
 
 
+def chunk_outcomes(
+    config: TaskSweepConfig,
+    count: int,
+    controller: str,
+    loss: float,
+    loss_seed: int,
+    poses: np.ndarray,
+    adjacency: np.ndarray | None,
+) -> list[dict]:
+    """The task's own ``outcome`` of every start of one chunk (chunk ``loss_seed`` of its cell), the
+    numbers and the kept keys only: what a cell file holds."""
+    task = registry.get(config.task)
+    assert task.outcome is not None
+    section = config.cells.section(count)
+    times, positions = run_chunk(config, section, controller, poses, adjacency, loss, loss_seed)
+    outcomes = []
+    for b in range(len(poses)):
+        outcome = task.outcome(times, positions[:, b], section, config.v_max_mps)
+        outcomes.append({key: value for key, value in outcome.items() if key in _KEPT or _is_number(value)})
+    return outcomes
+
+
+def cell_chunks(config: TaskSweepConfig, starts: int) -> list[np.ndarray]:
+    """The start indices of each chunk of a cell (chunk c draws its packet losses from seed c)."""
+    return np.array_split(np.arange(starts), math.ceil(starts / config.chunk_starts))
+
+
 def run_cell(
     config: TaskSweepConfig,
     topology: str,
@@ -227,29 +257,18 @@ def run_cell(
     starts: tuple[np.ndarray, np.ndarray | None] | None = None,
 ) -> dict:
     """Every start's ``outcome`` (the task's own) for one cell."""
-    task = registry.get(config.task)
-    assert task.outcome is not None
-    section = config.cells.section(count)
     poses, adjacency = starts if starts is not None else cell_starts(config, topology, count)
     outcomes: list[dict] = []
-    chunks = np.array_split(np.arange(len(poses)), math.ceil(len(poses) / config.chunk_starts))
-    for loss_seed, chunk in enumerate(chunks):
-        times, positions = run_chunk(
-            config,
-            section,
-            controller,
-            poses[chunk],
-            None if adjacency is None else adjacency[chunk],
-            loss,
-            loss_seed,
-        )
-        for b in range(len(chunk)):
-            outcome = task.outcome(times, positions[:, b], section, config.v_max_mps)
-            outcomes.append(
-                {key: value for key, value in outcome.items() if key in _KEPT or _is_number(value)}
-            )
+    for loss_seed, chunk in enumerate(cell_chunks(config, len(poses))):
+        chunk_adjacency = None if adjacency is None else adjacency[chunk]
+        outcomes += chunk_outcomes(config, count, controller, loss, loss_seed, poses[chunk], chunk_adjacency)
         if on_progress is not None:
             on_progress(len(outcomes))
+    return cell_record(topology, count, controller, loss, outcomes)
+
+
+def cell_record(topology: str, count: int, controller: str, loss: float, outcomes: list[dict]) -> dict:
+    """What a cell file holds."""
     return {
         "topology": topology,
         "robots": count,
@@ -308,12 +327,15 @@ def reusable_cells(config: TaskSweepConfig, out_dir: Path) -> bool:
 
 
 def run_task_sweep(
-    config: TaskSweepConfig, out_dir: Path, progress: bool = True, resume: bool = False
+    config: TaskSweepConfig, out_dir: Path, progress: bool = True, resume: bool = False, workers: int = 1
 ) -> list[dict]:
     """Run every cell, write ``sweep.csv``, ``sweep.md``, ``sweep.png`` and ``cells/``; the rows.
     ``resume``: a cell whose file ``out_dir`` already holds from a sweep of the same settings
     (:func:`reusable_cells`; another list of controllers allowed) is read, not run again; with other
-    settings there, ScenarioError."""
+    settings there, ScenarioError. ``workers`` > 1: the cells' chunks of starts run in that many
+    processes (one numba thread each); every cell file is the same as with one."""
+    if workers < 1:
+        raise ScenarioError(f"workers: must be at least 1, not {workers}")
     if resume and (out_dir / "sweep_config.json").is_file() and not reusable_cells(config, out_dir):
         raise ScenarioError(
             f"--resume: {out_dir / 'sweep_config.json'} has other settings than this sweep (only"
@@ -322,14 +344,14 @@ def run_task_sweep(
     reuse = resume and reusable_cells(config, out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "cells").mkdir(exist_ok=True)
-    todo = [  # the small swarms of every graph first: an interrupted sweep has whole tables for them
-        (topology, count, loss, controller)
+    todo = {  # the small swarms of every graph first: an interrupted sweep has whole tables for them
+        f"{topology}-N{count}-{controller}-loss{loss:g}.json": (topology, count, controller, loss)
         for loss in config.packet_losses
         for count in config.sizes
         for topology in config.topologies
         for controller in config.chosen_controllers
         if not (loss > 0 and controller_kind(controller).central)
-    ]
+    }
     # drawn once, before any run: starts that cannot be drawn are bad input, refused before any work
     starts = {(t, n): cell_starts(config, t, n) for t in config.topologies for n in config.sizes}
     bar = None
@@ -337,10 +359,31 @@ def run_task_sweep(
         from tqdm import tqdm
 
         bar = tqdm(total=len(todo), unit="cell", desc=f"sweep {config.task}")
-    rows: dict[str, dict] = {}  # by cell file name, in the order run
+    rows: dict[str, dict] = {}  # by cell file name, in the order finished
     finished: tuple[str, dict] | None = None  # the cell whose file is being written
+
+    def add(name: str, cell: dict, write: bool) -> None:
+        nonlocal finished
+        finished = (name, cell)
+        if write:
+            write_atomically(out_dir / "cells" / name, json.dumps(cell) + "\n")
+        rows[name] = summarize_cell(cell, config.cells.columns)
+        finished = None
+        if bar is not None:
+            bar.update()
+
+    def in_order() -> list[dict]:
+        return [rows[name] for name in todo if name in rows]
+
     try:
-        for topology, count, loss, controller in todo:
+        if workers > 1:
+            _run_in_workers(config, todo, starts, out_dir if reuse else None, workers, add, bar)
+        for name, (topology, count, controller, loss) in todo.items():
+            if name in rows:
+                continue
+            if reuse and (out_dir / "cells" / name).is_file():
+                add(name, json.loads((out_dir / "cells" / name).read_text()), write=False)
+                continue
             on_progress = None
             if bar is not None:
                 bar.set_description(
@@ -350,34 +393,85 @@ def run_task_sweep(
                 def on_progress(done: int, bar=bar) -> None:
                     bar.set_postfix_str(f"{done}/{config.seeds} starts")
 
-            name = f"{topology}-N{count}-{controller}-loss{loss:g}.json"
-            if reuse and (out_dir / "cells" / name).is_file():
-                cell = json.loads((out_dir / "cells" / name).read_text())
-                finished = (name, cell)
-            else:
-                cell = run_cell(
-                    config, topology, count, controller, loss, on_progress, starts[topology, count]
-                )
-                finished = (name, cell)
-                write_atomically(out_dir / "cells" / name, json.dumps(cell) + "\n")
-            rows[name] = summarize_cell(cell, config.cells.columns)
-            finished = None
-            if bar is not None:
-                bar.update()
+            cell = run_cell(config, topology, count, controller, loss, on_progress, starts[topology, count])
+            add(name, cell, write=True)
     except KeyboardInterrupt:  # keep what is done: the tables of the finished cells, then exit 130
         # a Ctrl-C between a cell's file and its row: the file is there, so is its row
         if finished is not None and finished[0] not in rows and (out_dir / "cells" / finished[0]).is_file():
             rows[finished[0]] = summarize_cell(finished[1], config.cells.columns)
         if rows:
             note = f"Interrupted after {len(rows)} of {len(todo)} cells."
-            write_tables(out_dir, config, list(rows.values()), note=note)
+            write_tables(out_dir, config, in_order(), note=note)
         raise
     finally:
         if bar is not None:
             bar.close()
-    write_tables(out_dir, config, list(rows.values()))
-    plot_task_sweep(out_dir / "sweep.png", config, list(rows.values()))
-    return list(rows.values())
+    write_tables(out_dir, config, in_order())
+    plot_task_sweep(out_dir / "sweep.png", config, in_order())
+    return in_order()
+
+
+def _worker_init() -> None:
+    """A sweep worker: one numba thread (the processes share the cores); Ctrl-C is the parent's, which
+    ends the pool."""
+    import numba
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    numba.set_num_threads(1)
+
+
+def _worker_chunk(job: tuple[str, int, tuple]) -> tuple[str, int, list[dict]]:
+    name, index, args = job
+    return name, index, chunk_outcomes(*args)
+
+
+def _run_in_workers(
+    config: TaskSweepConfig,
+    todo: dict[str, tuple[str, int, str, float]],
+    starts: dict[tuple[str, int], tuple[np.ndarray, np.ndarray | None]],
+    reuse_dir: Path | None,
+    workers: int,
+    add: Callable[[str, dict, bool], None],
+    bar: Any,
+) -> None:
+    """Every chunk of every cell still to run, over ``workers`` processes, the earlier cells' chunks
+    first; a cell is added (its file written) when its last chunk is in. Cells whose file ``reuse_dir``
+    holds are left to the caller."""
+    from multiprocessing import get_context
+
+    jobs: list[tuple[str, int, tuple]] = []
+    parts: dict[str, list[list[dict] | None]] = {}
+    for name, (topology, count, controller, loss) in todo.items():
+        if reuse_dir is not None and (reuse_dir / "cells" / name).is_file():
+            continue
+        poses, adjacency = starts[topology, count]
+        chunks = cell_chunks(config, len(poses))
+        parts[name] = [None] * len(chunks)
+        for index, chunk in enumerate(chunks):
+            graph = None if adjacency is None else adjacency[chunk]
+            jobs.append((name, index, (config, count, controller, loss, index, poses[chunk], graph)))
+    if not jobs:
+        return
+    if bar is not None:
+        bar.set_description(f"{len(parts)} cells in {workers} processes")
+    # Ctrl-C is the parent's: the workers are born with SIGINT blocked (a process inherits its mask
+    # across exec, so one still importing cannot print a traceback) and ignore it from their initializer;
+    # one that lands while they start is held and delivered to this process after.
+    blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        pool = get_context("spawn").Pool(min(workers, len(jobs)), initializer=_worker_init)
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+    with pool:  # left by an exception (Ctrl-C included), the pool is terminated: no worker outlives it
+        for done, (name, index, outcomes) in enumerate(pool.imap_unordered(_worker_chunk, jobs), 1):
+            parts[name][index] = outcomes
+            if bar is not None:
+                bar.set_postfix_str(f"{done}/{len(jobs)} chunks")
+            done_parts = [part for part in parts[name] if part is not None]
+            if len(done_parts) == len(parts[name]):
+                topology, count, controller, loss = todo[name]
+                every = [outcome for part in done_parts for outcome in part]
+                add(name, cell_record(topology, count, controller, loss, every), True)
 
 
 def write_tables(out_dir: Path, config: TaskSweepConfig, rows: list[dict], note: str = "") -> None:
