@@ -433,6 +433,41 @@ def test_the_batched_prediction_is_the_on_board_one_bit_for_bit(horizon_ticks):
     np.testing.assert_array_equal(batched, predicted_positions(table, 0.025, horizon_ticks))
 
 
+@pytest.mark.parametrize("horizon", [0, 2, None])
+def test_lloyd_gnn_places_the_robots_it_knows_over_the_horizon_its_policy_file_names(horizon, tmp_path):
+    """The readout is trained on one cell and must run on it: the horizon is in the policy file
+    (``meta["horizon_ticks"]``; a file without it was trained with ``HORIZON_TICKS``). Both forms of
+    ``lloyd_gnn`` place the entries of a table (ages up to 40 ticks) exactly as ``lloyd_predict`` with
+    that horizon does, and not as with another."""
+    from swarm.sim.coverage_gnn import DEFAULT_MODEL_NAME, CoverageGnnWeights
+    from swarm.sim.steering_mlp import PolicyFileError
+
+    shipped = CoverageGnnWeights.load(Path("models") / DEFAULT_MODEL_NAME)
+    meta = {key: value for key, value in shipped.meta.items() if key != "horizon_ticks"}
+    if horizon is not None:
+        meta["horizon_ticks"] = horizon
+    path = tmp_path / "policy.npz"
+    CoverageGnnWeights(shipped.weights, shipped.biases, meta).save(path)
+    expected = HORIZON_TICKS if horizon is None else horizon
+    count, square = 6, section(grid_per_axis=24)
+    rng = np.random.default_rng(11)
+    table = np.zeros((2, count, count, 5))
+    table[..., 0] = rng.choice([0.0, 1.0, 2.0, 4.0, 9.0, 40.0], table.shape[:3])
+    table[..., 1:3] = rng.uniform(-1, 1, (*table.shape[:3], 2))
+    table[..., 3:5] = table[..., 1:3] + rng.normal(scale=0.5, size=(*table.shape[:3], 2))
+    gnn = batched_controller("lloyd_gnn", _args(square, count, policy=str(path)))
+    for other in sorted({0, 2, HORIZON_TICKS}):
+        predict = batched_controller("lloyd_predict", _args(square, count, horizon_ticks=other))
+        same = np.array_equal(gnn.known_positions(table), predict.known_positions(table))
+        assert same == (other == expected), other
+    onboard = onboard_controller("lloyd_gnn", _args(square, count, robot_id=1, policy=str(path)))
+    np.testing.assert_array_equal(onboard.known_positions(table[0, 1]), gnn.known_positions(table)[0, 1])
+    meta["horizon_ticks"] = -1
+    CoverageGnnWeights(shipped.weights, shipped.biases, meta).save(path)
+    with pytest.raises(PolicyFileError, match="horizon_ticks: -1"):
+        CoverageGnnWeights.load(path)
+
+
 def test_lloyd_predict_with_a_horizon_of_zero_drives_as_lloyd_flood():
     """``horizon_ticks: 0`` places every known robot where it was sent from: on a line of 8 (entries up
     to 7 ticks old) the swarm moves bit for bit as ``lloyd_flood``'s, while the default horizon does

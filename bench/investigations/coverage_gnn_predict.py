@@ -12,7 +12,10 @@ given (``swarm.scenarios.task_sweep``: the same starts for every kind, 60 s):
     python bench/investigations/coverage_gnn_predict.py --out bench/results/coverage_gnn_predict.md
 
 It is an investigation: the weights it trains are written beside the table (``--weights``), not shipped;
-``lloyd_gnn`` runs the shipped ``models/coverage/lloyd_gnn.npz``.
+``lloyd_gnn`` runs the shipped ``models/coverage/lloyd_gnn.npz``: in the tables committed before its
+3-tick horizon (``bench/results/coverage_gnn_predict.md``, ``coverage_gnn_*50_*.md``) that column is
+the 5-tick policy's; ``flood_gnn`` and ``both_gnn`` are trained, as then, on 5 ticks (their files name
+no horizon).
 """
 
 from __future__ import annotations

@@ -482,8 +482,8 @@ class LloydPredict(LloydFlood):
 
 
 class LloydGnn(LloydPredict):
-    """``lloyd_gnn``, batched: ``lloyd_predict``'s flood and cells (its default horizon), a learned
-    steering (``swarm.sim.coverage_gnn``)."""
+    """``lloyd_gnn``, batched: ``lloyd_predict``'s flood and cells (over the horizon its policy file
+    names), a learned steering (``swarm.sim.coverage_gnn``)."""
 
     def __init__(
         self,
@@ -494,7 +494,7 @@ class LloydGnn(LloydPredict):
         weights: CoverageGnnWeights,
         reverse: bool = True,
     ):
-        super().__init__(robot, control_period_s, section, robot_count, reverse)
+        super().__init__(robot, control_period_s, section, robot_count, reverse, weights.horizon_ticks)
         self.policy = weights  # (self.weights are the quadrature's)
         self.scale_m = region_scale_m(self.points)
         self.last_features: np.ndarray | None = None  # (B, N, 8) of the last tick (training reads it)

@@ -3,8 +3,10 @@
 Information and aggregation are ``lloyd_predict``'s (``swarm.sim.coverage_controllers``): every robot
 floods the freshest position it knows of every robot, the target that robot computed there and the
 entry's age in hops (``N x (age + 1, x, y, target x, target y)``; the merge keeps the least age), places
-every robot it knows where its target takes it in the entry's age (at most ``HORIZON_TICKS``, 5 ticks
-of it) and takes its Voronoi cell among those points. From that a robot has, in its own frame:
+every robot it knows where its target takes it in the entry's age (at most the horizon its policy
+file names, ``meta["horizon_ticks"]``: 3 ticks for the shipped one, ``lloyd_predict``'s 5 for a file
+without the key) and takes its Voronoi cell among those points. From that a robot has, in its own
+frame:
 
 - ``r``: the vector from its axle to its cell's centroid ``c``; ``rho = |r|``, ``rho_n = rho / (v_max T)``;
 - ``known``: the fraction of the N robots it knows (itself included);
@@ -31,12 +33,14 @@ The batched form (``swarm.sim.coverage_controllers.LloydGnn``) and the per-robot
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from swarm.core.robot import RobotParams
 from swarm.core.tasks.coverage import CoverageSection
-from swarm.sim.coverage_onboard import OnboardLloydPredict
-from swarm.sim.steering_mlp import SteeringMlp, local_command, target_features, to_world
+from swarm.sim.coverage_onboard import HORIZON_TICKS, OnboardLloydPredict
+from swarm.sim.steering_mlp import PolicyFileError, SteeringMlp, local_command, target_features, to_world
 
 FEATURES = ("dir_x", "dir_y", "near", "known", "stale", "mass", "centre_x", "centre_y")
 DEFAULT_MODEL_NAME = "coverage/lloyd_gnn.npz"
@@ -50,6 +54,22 @@ class CoverageGnnWeights(SteeringMlp):
     FORMAT = "coverage_gnn/2"
     FEATURES = FEATURES
     KIND = "lloyd_gnn"
+
+    @classmethod
+    def load(cls, source: str | Path | bytes) -> CoverageGnnWeights:
+        """``SteeringMlp.load``, its horizon checked: a bad one is refused with the file, not later."""
+        weights = super().load(source)
+        weights.horizon_ticks  # noqa: B018 (raises PolicyFileError)
+        return weights
+
+    @property
+    def horizon_ticks(self) -> float:
+        """The prediction horizon of the cell it was trained on and runs on (``meta["horizon_ticks"]``;
+        a file written before the key existed was trained with ``lloyd_predict``'s ``HORIZON_TICKS``)."""
+        value = self.meta.get("horizon_ticks", HORIZON_TICKS)
+        if isinstance(value, bool) or not isinstance(value, int | float) or not value >= 0:
+            raise PolicyFileError(f"meta horizon_ticks: {value!r} is not a number of ticks >= 0")
+        return float(value)
 
 
 def region_scale_m(points: np.ndarray) -> float:
@@ -116,7 +136,9 @@ class OnboardLloydGnn(OnboardLloydPredict):
         weights: CoverageGnnWeights,
         reverse: bool = True,
     ):
-        super().__init__(robot, control_period_s, section, robot_count, robot_id, reverse)
+        super().__init__(
+            robot, control_period_s, section, robot_count, robot_id, reverse, weights.horizon_ticks
+        )
         self.policy = weights  # (self.weights are the quadrature's)
         self.scale_m = region_scale_m(self.points)
         self._own = np.arange(self.count) == self.robot_id

@@ -65,6 +65,7 @@ class CoverageConfig:
     eval_starts: int = 8
     eval_s: float = 15.0
     packet_losses: tuple[float, ...] = (0.0,)  # each episode's loss drawn from these (one: no draw)
+    horizon_ticks: int = 3  # the cell's prediction horizon, kept in the policy file (docs/tasks.md)
     progress: bool = True
 
 
@@ -158,7 +159,12 @@ def closed_loop(config: CoverageConfig, weights: CoverageGnnWeights | str, seed:
 
 # ------------------------------------------------------------------------------------ the loop
 def train(config: CoverageConfig) -> Path:
-    meta = {"config": asdict(config), "features": list(FEATURES), "speed": "full"}
+    meta = {
+        "config": asdict(config),
+        "features": list(FEATURES),
+        "speed": "full",
+        "horizon_ticks": config.horizon_ticks,
+    }
     return dagger(
         config,
         weights_class=CoverageGnnWeights,
