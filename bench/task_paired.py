@@ -32,19 +32,15 @@ from pathlib import Path
 import numpy as np
 
 from swarm.core.tasks import registry
+from swarm.scenarios.task_sweep import column_value
 
 EXIT_BAD_INPUT = 2
 
 
 def start_values(cell: dict, column: str) -> np.ndarray:
     """``(starts,)`` the column of every start of a cell file, ``inf`` where a start has none."""
-    values = []
-    for outcome in cell["starts"]:
-        value = outcome
-        for part in column.split("."):
-            value = value.get(part) if isinstance(value, dict) else None
-        values.append(np.inf if value is None else float(value))
-    return np.asarray(values)
+    values = [column_value(outcome, column) for outcome in cell["starts"]]
+    return np.asarray([np.inf if value is None else value for value in values])
 
 
 def paired_row(mine: np.ndarray, other: np.ndarray, resamples: int, seed: int) -> dict:

@@ -223,7 +223,7 @@ def run_chunk(
 def chunk_outcomes(
     config: TaskSweepConfig,
     count: int,
-    controller: str,
+    controller: str | Any,
     loss: float,
     loss_seed: int,
     poses: np.ndarray,
@@ -285,16 +285,18 @@ def _is_number(value: object) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool)
 
 
+def column_value(outcome: dict, column: str) -> float | None:
+    """One start's value of a column (``a.b``: key b of mapping a); None where the start has none."""
+    value: Any = outcome
+    for part in column.split("."):
+        value = value.get(part) if isinstance(value, dict) else None
+    return None if value is None else float(value)
+
+
 def column_values(outcomes: list[dict], column: str) -> np.ndarray:
-    """One column of the starts' outcomes (``a.b``: key b of mapping a); starts without it left out."""
-    values = []
-    for outcome in outcomes:
-        value: Any = outcome
-        for part in column.split("."):
-            value = value.get(part) if isinstance(value, dict) else None
-        if value is not None:
-            values.append(float(value))
-    return np.asarray(values, dtype=np.float64)
+    """One column of the starts' outcomes (:func:`column_value`); starts without it left out."""
+    values = [column_value(outcome, column) for outcome in outcomes]
+    return np.asarray([value for value in values if value is not None], dtype=np.float64)
 
 
 def summarize_cell(cell: dict, columns: tuple[str, ...]) -> dict:
@@ -406,9 +408,10 @@ def run_task_sweep(
     finally:
         if bar is not None:
             bar.close()
-    write_tables(out_dir, config, in_order())
-    plot_task_sweep(out_dir / "sweep.png", config, in_order())
-    return in_order()
+    ordered = in_order()
+    write_tables(out_dir, config, ordered)
+    plot_task_sweep(out_dir / "sweep.png", config, ordered)
+    return ordered
 
 
 def _worker_init() -> None:
