@@ -595,8 +595,9 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument(
         "--resume",
         action="store_true",
-        help="task sweeps: read the cells --out already holds from a sweep of the same settings (other"
-        " controllers allowed) instead of running them again",
+        help="task sweeps: read the cells --out already holds from a sweep of the same settings (its"
+        " topologies, sizes, controllers and packet losses may differ) instead of running them again:"
+        " a long sweep can be run in parts, e.g. one graph at a time",
     )
     sweep.set_defaults(handler=cmd_sweep)
 

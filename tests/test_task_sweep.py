@@ -19,6 +19,7 @@ import pytest
 
 from swarm.core.tasks import registry
 from swarm.scenarios import task_sweep
+from swarm.scenarios.scenario import ScenarioError
 from swarm.scenarios.task_sweep import TaskSweepConfig
 
 SWEPT = task_sweep.sweep_tasks()
@@ -264,6 +265,40 @@ def test_worker_processes_write_the_cells_one_process_writes(task, tmp_path):
         assert (one / "cells" / name).read_bytes() == (two / "cells" / name).read_bytes(), name
     for table in ("sweep.md", "sweep.csv", "sweep_config.json"):
         assert (one / table).read_bytes() == (two / table).read_bytes(), table
+
+
+def test_a_sweep_run_in_parts_with_resume_writes_what_one_run_writes(tmp_path):
+    """``--resume`` across parts that choose other graphs, sizes, controllers and losses (a long sweep
+    run one graph at a time). The oracle is the sweep run at once: every cell file and both tables byte
+    for byte; the last part runs only the cells no part ran (a marker written into a cell survives)."""
+    whole = _small(
+        "coverage", sizes=[4, 5], seeds=2, controllers=["lloyd_flood", "lloyd_gnn"], packet_losses=[0.0, 0.5]
+    )
+    once, parts = tmp_path / "once", tmp_path / "parts"
+    task_sweep.run_task_sweep(whole, once, progress=False)
+    first = whole.with_overrides({"topologies": ["disk"], "sizes": [5], "controllers": ["lloyd_gnn"]})
+    task_sweep.run_task_sweep(first, parts, progress=False)
+    second = whole.with_overrides({"topologies": ["cycle"], "packet_losses": [0.5]})
+    task_sweep.run_task_sweep(second, parts, progress=False, resume=True, workers=2)
+    marked = parts / "cells" / "disk-N5-lloyd_gnn-loss0.json"
+    cell = json.loads(marked.read_text())
+    marked.write_text(json.dumps({**cell, "marker": True}) + "\n")
+    task_sweep.run_task_sweep(whole, parts, progress=False, resume=True)
+    assert json.loads(marked.read_text())["marker"]  # read, not run again
+    marked.write_text(json.dumps(cell) + "\n")
+    names = sorted(path.name for path in (once / "cells").iterdir())
+    assert names == sorted(path.name for path in (parts / "cells").iterdir())
+    assert len(names) == 2 * 2 * 2 * 2  # cycle and disk, N = 4 and 5, two kinds, two losses
+    for name in names:
+        assert (once / "cells" / name).read_bytes() == (parts / "cells" / name).read_bytes(), name
+    task_sweep.run_task_sweep(whole, parts, progress=False, resume=True)  # the tables of the true cells
+    for table in ("sweep.md", "sweep.csv", "sweep_config.json"):
+        assert (once / table).read_bytes() == (parts / table).read_bytes(), table
+    # another setting than the lists: refused, nothing written
+    before = {p.name: p.read_bytes() for p in (parts / "cells").iterdir()}
+    with pytest.raises(ScenarioError, match="only the topologies, sizes, controllers and packet losses"):
+        task_sweep.run_task_sweep(whole.with_overrides({"seeds": 3}), parts, progress=False, resume=True)
+    assert {p.name: p.read_bytes() for p in (parts / "cells").iterdir()} == before
 
 
 @pytest.mark.slow

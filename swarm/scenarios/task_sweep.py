@@ -314,17 +314,24 @@ def summarize_cell(cell: dict, columns: tuple[str, ...]) -> dict:
     return row
 
 
+# The lists that choose which cells run. A cell's starts, graphs and loss seeds depend on its own
+# (topology, N, controller, loss) and the other settings only (cell_starts, run_cell), so sweeps that
+# differ in these lists alone share every cell they both have.
+CELL_LISTS = ("topologies", "sizes", "controllers", "packet_losses")
+
+
 def reusable_cells(config: TaskSweepConfig, out_dir: Path) -> bool:
-    """``out_dir`` holds cells of a sweep with this config but for its controllers (``--resume``): its
-    ``sweep_config.json`` equals this one in every other setting, so its cells' starts are these."""
+    """``out_dir`` holds cells of a sweep with this config but for the cells it chose (``--resume``):
+    its ``sweep_config.json`` equals this one in every setting but :data:`CELL_LISTS`, so a cell file
+    there is the cell this sweep would run."""
     path = out_dir / "sweep_config.json"
     if not path.is_file():
         return False
     current = json.loads(json.dumps(asdict(config)))
     defaults = json.loads(json.dumps(asdict(TaskSweepConfig(task=config.task))))
     stored = {**defaults, **json.loads(path.read_text())}  # a setting added since: its default
-    return {k: v for k, v in stored.items() if k != "controllers"} == {
-        k: v for k, v in current.items() if k != "controllers"
+    return {k: v for k, v in stored.items() if k not in CELL_LISTS} == {
+        k: v for k, v in current.items() if k not in CELL_LISTS
     }
 
 
@@ -333,15 +340,15 @@ def run_task_sweep(
 ) -> list[dict]:
     """Run every cell, write ``sweep.csv``, ``sweep.md``, ``sweep.png`` and ``cells/``; the rows.
     ``resume``: a cell whose file ``out_dir`` already holds from a sweep of the same settings
-    (:func:`reusable_cells`; another list of controllers allowed) is read, not run again; with other
-    settings there, ScenarioError. ``workers`` > 1: the cells' chunks of starts run in that many
-    processes (one numba thread each); every cell file is the same as with one."""
+    (:func:`reusable_cells`; other lists of graphs, sizes, controllers or losses allowed) is read, not
+    run again; with other settings there, ScenarioError. ``workers`` > 1: the cells' chunks of starts
+    run in that many processes (one numba thread each); every cell file is the same as with one."""
     if workers < 1:
         raise ScenarioError(f"workers: must be at least 1, not {workers}")
     if resume and (out_dir / "sweep_config.json").is_file() and not reusable_cells(config, out_dir):
         raise ScenarioError(
             f"--resume: {out_dir / 'sweep_config.json'} has other settings than this sweep (only"
-            " controllers may differ); give another --out"
+            " the topologies, sizes, controllers and packet losses may differ); give another --out"
         )
     reuse = resume and reusable_cells(config, out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
