@@ -30,6 +30,7 @@ import csv
 import json
 import math
 import signal
+import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
@@ -472,11 +473,13 @@ def _run_in_workers(
         pool = get_context("spawn").Pool(min(workers, len(jobs)), initializer=_worker_init)
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+    began_s = time.monotonic()
     with pool:  # left by an exception (Ctrl-C included), the pool is terminated: no worker outlives it
         for done, (name, index, outcomes) in enumerate(pool.imap_unordered(_worker_chunk, jobs), 1):
             parts[name][index] = outcomes
-            if bar is not None:
-                bar.set_postfix_str(f"{done}/{len(jobs)} chunks")
+            if bar is not None:  # the time left if the chunks still to run cost what the done ones did
+                left_s = (time.monotonic() - began_s) / done * (len(jobs) - done)
+                bar.set_postfix_str(f"{done}/{len(jobs)} chunks, about {bar.format_interval(left_s)} left")
             done_parts = [part for part in parts[name] if part is not None]
             if len(done_parts) == len(parts[name]):
                 topology, count, controller, loss = todo[name]
