@@ -346,12 +346,12 @@ def run_task_sweep(
     run in that many processes (one numba thread each); every cell file is the same as with one."""
     if workers < 1:
         raise ScenarioError(f"workers: must be at least 1, not {workers}")
-    if resume and (out_dir / "sweep_config.json").is_file() and not reusable_cells(config, out_dir):
+    reuse = resume and reusable_cells(config, out_dir)
+    if resume and not reuse and (out_dir / "sweep_config.json").is_file():
         raise ScenarioError(
             f"--resume: {out_dir / 'sweep_config.json'} has other settings than this sweep (only"
             " the topologies, sizes, controllers and packet losses may differ); give another --out"
         )
-    reuse = resume and reusable_cells(config, out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "cells").mkdir(exist_ok=True)
     todo = {  # the small swarms of every graph first: an interrupted sweep has whole tables for them
