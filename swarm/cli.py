@@ -447,7 +447,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     try:
         config = module.make_config(args.preset, overrides)
     except (TypeError, ValueError) as error:
-        raise UsageError(str(error)) from None
+        raise UsageError(f"{args.config}: {error}" if args.config else str(error)) from None
     print(f"swarm train: {args.algo} -> {module.train(config)}")
     return EXIT_SUCCESS
 

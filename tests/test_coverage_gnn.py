@@ -206,3 +206,45 @@ def test_training_episodes_take_packet_loss_when_asked():
         features, _ = train_coverage.episode(config, weights, 1.0, "line", 6, rng)
         rows[name] = features[:, stale].mean()
     assert rows["lossy"] > rows["none"]
+
+
+def test_the_velocity_weighted_fit_is_the_squared_velocity_error():
+    """``direction_weight: velocity``: with the command at its fixed speed ``v = gate`` (units of v_max)
+    in the direction ``(a, b)``, the weighted ``1 - cos`` times the weights' sum is half the squared
+    velocity error ``sum |u - u*|^2`` less what no direction can remove, ``sum (v - |u*|)^2``: the
+    oracle here is the velocity vectors themselves. A row at its fixed point (a millimetre's label)
+    moves the weighted loss by almost nothing and the unweighted one by a whole ``1 - cos``."""
+    torch = pytest.importorskip("torch")
+    from swarm.learn.train.steering import polar_loss
+
+    rng = np.random.default_rng(4)
+    rows = 64
+    features = np.zeros((rows, len(FEATURES)))
+    features[:, 2] = rng.uniform(0.05, 1.0, rows)  # the gate, min(rho_n, 1)
+    output = rng.normal(0, 1, (rows, 3))
+    labels = rng.normal(0, 0.5, (rows, 2))
+    speed = features[:, 2]
+    direction = output[:, :2] / np.linalg.norm(output[:, :2], axis=1, keepdims=True)
+    u = speed[:, None] * direction
+    excess = np.sum((u - labels) ** 2) - np.sum((speed - np.linalg.norm(labels, axis=1)) ** 2)
+    weights = speed * np.linalg.norm(labels, axis=1)
+
+    def loss(out: np.ndarray, lab: np.ndarray, feat: np.ndarray, weighted: bool) -> float:
+        tensors = (torch.tensor(feat), torch.tensor(out), torch.tensor(lab))
+        return float(polar_loss(*tensors, imitate_speed=False, weighted=weighted))
+
+    assert math.isclose(loss(output, labels, features, True) * weights.sum(), excess / 2, rel_tol=1e-9)
+    # one row more, at its fixed point and pointing the wrong way
+    still_out = np.vstack([output, [-1.0, 0.0, 0.0]])
+    still_labels = np.vstack([labels, [1e-4, 0.0]])
+    still_features = np.vstack([features, features[:1]])
+    changes = [
+        loss(still_out, still_labels, still_features, weighted) - loss(output, labels, features, weighted)
+        for weighted in (True, False)
+    ]
+    assert abs(changes[0]) < 1e-4 < changes[1]
+
+
+def test_a_bad_direction_weight_is_refused_by_name():
+    with pytest.raises(ValueError, match=r"direction_weight.*'speed'.*equal, velocity"):
+        train_coverage.make_config("default", {"direction_weight": "speed"})

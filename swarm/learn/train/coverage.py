@@ -42,8 +42,10 @@ from swarm.sim.coverage_controllers import LloydExpert, LloydGnn
 from swarm.sim.coverage_gnn import FEATURES, CoverageGnnWeights
 from swarm.sim.kinematic import KinematicSim
 
-
 # ------------------------------------------------------------------------------------ hyperparameters
+DIRECTION_WEIGHTS = ("equal", "velocity")  # how a row's 1 - cos counts in the fit (train.steering)
+
+
 @dataclass(frozen=True)
 class CoverageConfig:
     out: str = "runs/coverage"
@@ -66,6 +68,7 @@ class CoverageConfig:
     eval_s: float = 15.0
     packet_losses: tuple[float, ...] = (0.0,)  # each episode's loss drawn from these (one: no draw)
     horizon_ticks: int = 3  # the cell's prediction horizon, kept in the policy file (docs/tasks.md)
+    direction_weight: str = "equal"  # "velocity": a row's 1 - cos weighted by gate * |label| (steering.py)
     progress: bool = True
 
 
@@ -82,7 +85,13 @@ def make_config(preset: str = "default", overrides: dict | None = None) -> Cover
     if "eval_cells" in overrides:
         overrides["eval_cells"] = tuple(tuple(cell) for cell in overrides["eval_cells"])
     tuple_fields = ("counts", "graphs", "packet_losses")
-    return preset_with_overrides("coverage", PRESETS, preset, overrides, tuple_fields)
+    config = preset_with_overrides("coverage", PRESETS, preset, overrides, tuple_fields)
+    if config.direction_weight not in DIRECTION_WEIGHTS:
+        raise ValueError(
+            f"coverage option 'direction_weight': {config.direction_weight!r} is not one of"
+            f" {', '.join(DIRECTION_WEIGHTS)}"
+        )
+    return config
 
 
 def _cells(
@@ -174,4 +183,5 @@ def train(config: CoverageConfig) -> Path:
         score="median_first_within_s",
         references=("lloyd_predict", "lloyd_flood", "lloyd"),
         imitate_speed=False,  # the direction only
+        weighted=config.direction_weight == "velocity",
     )

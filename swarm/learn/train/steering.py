@@ -5,7 +5,11 @@ form of ``swarm.sim.steering_mlp``'s MLP, eq. (1)'s polar loss, the fit and the 
 The loss: ``1 - cos`` of the angle between the direction ``(a, b)`` and the label's (rows with a label
 of length 0 add nothing), plus, where the speed is imitated, the squared error of ``clip(c, 0, 1)``
 against the label's speed (its length over ``v_max min(rho_n, 1)``, at most 1). The third feature is
-always the gate ``min(rho_n, 1)``.
+always the gate ``min(rho_n, 1)``. With ``weighted`` the ``1 - cos`` of a row counts in proportion to
+``gate * |label|``: at the command's fixed speed ``v = v_max gate`` the squared velocity error is
+``|u - u*|^2 = v^2 + |u*|^2 - 2 v |u*| cos``, so that weighting minimises it; unweighted, a row whose
+label is a millimetre's move (a robot at its fixed point) pulls the direction as hard as one at full
+speed.
 """
 
 from __future__ import annotations
@@ -58,7 +62,11 @@ class Mlp(torch.nn.Module):
 
 
 def polar_loss(
-    features: torch.Tensor, output: torch.Tensor, labels: torch.Tensor, imitate_speed: bool = True
+    features: torch.Tensor,
+    output: torch.Tensor,
+    labels: torch.Tensor,
+    imitate_speed: bool = True,
+    weighted: bool = False,
 ) -> torch.Tensor:
     """Eq. (1)'s speed and direction against the label's (module docstring); labels in units of v_max."""
     gate = features[:, 2]
@@ -67,6 +75,10 @@ def polar_loss(
     speed_loss = (torch.clamp(output[:, 2], 0.0, 1.0) - torch.clamp(speed_label, max=1.0)) ** 2
     cosine = (output[:, :2] * labels).sum(-1) / (output[:, :2].norm(dim=-1) * length + 1e-9)
     moving = (length > 1e-9).float()
+    if weighted:  # the squared velocity error's share that the direction decides (module docstring)
+        weight = gate * length * moving
+        direction_loss = (weight * (1.0 - cosine)).sum() / torch.clamp(weight.sum(), min=1e-9)
+        return (speed_loss.mean() if imitate_speed else 0.0) + direction_loss
     return ((speed_loss if imitate_speed else 0.0) + moving * (1.0 - cosine)).mean()
 
 
@@ -81,6 +93,7 @@ def fit(
     v_max_mps: float,
     imitate_speed: bool,
     rng: np.random.Generator,
+    weighted: bool = False,
 ) -> float:
     """``steps`` Adam steps on minibatches of ``batch_rows`` rows drawn with ``rng``; the mean loss."""
     x = torch.from_numpy(features).float()
@@ -88,7 +101,7 @@ def fit(
     total = 0.0
     for _ in range(steps):
         rows = torch.from_numpy(rng.integers(0, len(x), batch_rows))
-        loss = polar_loss(x[rows], model(x[rows]), y[rows], imitate_speed)
+        loss = polar_loss(x[rows], model(x[rows]), y[rows], imitate_speed, weighted)
         optimiser.zero_grad()
         loss.backward()
         optimiser.step()
@@ -106,6 +119,7 @@ def dagger(
     score: str,
     references: tuple[str, ...],
     imitate_speed: bool,
+    weighted: bool = False,
 ) -> Path:
     """DAgger imitation of a task's expert by its learned steering (``capt_gnn``, ``lloyd_gnn``).
 
@@ -116,7 +130,8 @@ def dagger(
     rows of features and the expert's labels); every row so far is fitted (:func:`fit`), and each
     iterate checked by ``closed_loop(config, weights, seed)`` (lower is better; logged as ``score``,
     beside each kind of ``references`` on the same starts). The best iterate is ``<out>/policy.npz``;
-    the log is ``<out>/log.csv``. Seeded: numpy and torch from ``seed``, torch on one thread."""
+    the log is ``<out>/log.csv``; ``weighted``: :func:`polar_loss`'s. Seeded: numpy and torch from
+    ``seed``, torch on one thread."""
     out = Path(config.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "config.json").write_text(json.dumps(asdict(config), indent=2) + "\n")
@@ -152,6 +167,7 @@ def dagger(
             v_max_mps=config.v_max_mps,
             imitate_speed=imitate_speed,
             rng=rng,
+            weighted=weighted,
         )
         # -- closed-loop check
         weights = model.export(weights_class, meta | {"iteration": iteration, "rows": len(all_features)})

@@ -1,0 +1,165 @@
+"""Variants of the coverage controllers (another horizon, another policy file) on a sweep's own starts.
+
+A task sweep keeps every start's outcome (``cells/*.json``), so a variant run on the same starts can be
+compared with the committed kinds start by start (``bench/task_paired.py``). This runs each
+``--kinds`` entry on the first ``--starts`` starts of a sweep's cell, in ``--workers`` processes, and
+writes one cell file per kind into ``--out/cells``:
+
+- ``NAME=lloyd_predict:H``: ``lloyd_predict`` with an ``H``-tick horizon (``horizon_ticks``);
+- ``NAME=gnn:PATH``: ``lloyd_gnn`` with the policy file ``PATH`` (on the horizon the file names);
+- ``NAME=gnn:PATH:H``: that readout run on an ``H``-tick cell instead (a diagnosis: it was trained on
+  its own);
+- ``NAME=KIND``: a registered kind (``lloyd_predict``, ``lloyd_gnn``, ...) as the sweep runs it.
+
+``--sweep DIR`` names the sweep whose starts are used (its ``sweep_config.json``: seed, starts per
+cell, every setting) and whose cells are copied, cut to the first ``--starts``, for the kinds it has
+(``--reference``); ``--seed 1`` instead draws other starts (validation starts, which no committed table
+uses), and then every kind runs. Cells already in ``--out/cells`` are read, not run (resumable).
+The comparison: every kind against the first ``--reference`` kind, on ``first_within_s`` and
+``ratio_at_s.10/20/40`` (``--out/paired-*.md``).
+
+    python bench/investigations/coverage_variants.py --sweep docs/results/tasks/coverage-100-1000 \\
+        --cells cycle:100 line:100 --starts 300 --reference lloyd_predict lloyd_gnn \\
+        --kinds predict_h3=lloyd_predict:3 --out bench/results/coverage_variants_n100
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import time
+from dataclasses import fields, replace
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # bench/, for task_paired
+
+import task_paired
+
+from swarm.core.robot import RobotParams
+from swarm.scenarios.task_sweep import TaskSweepConfig, cell_chunks, cell_record, cell_starts, chunk_outcomes
+from swarm.sim.coverage_controllers import LloydGnn, LloydPredict
+from swarm.sim.coverage_gnn import CoverageGnnWeights
+
+COLUMNS = ("first_within_s", "ratio_at_s.10", "ratio_at_s.20", "ratio_at_s.40")
+
+
+def build(spec: str, config: TaskSweepConfig, count: int):
+    """The batched controller of a ``--kinds`` spec (a registered kind's name is passed through)."""
+    kind, _, rest = spec.partition(":")
+    if not rest:
+        return kind
+    section = config.cells.section(count)
+    robot = RobotParams(v_max_mps=config.v_max_mps)
+    if kind == "lloyd_predict":
+        return LloydPredict(robot, config.control_period_s, section, count, horizon_ticks=float(rest))
+    if kind == "gnn":
+        path, _, horizon = rest.partition(":")
+        weights = CoverageGnnWeights.load(path)
+        if horizon:
+            weights = replace(weights, meta={**weights.meta, "horizon_ticks": float(horizon)})
+        return LloydGnn(robot, config.control_period_s, section, count, weights)
+    raise SystemExit(f"--kinds: {spec}: not lloyd_predict:H, gnn:PATH[:H] or a kind's name")
+
+
+def _worker_init() -> None:
+    import numba
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    numba.set_num_threads(1)
+
+
+def _chunk(job: tuple) -> tuple[Path, int, list[dict]]:
+    path, index, spec, config, count, poses, adjacency = job
+    controller = build(spec, config, count)
+    return path, index, chunk_outcomes(config, count, controller, 0.0, index, poses, adjacency)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sweep", type=Path, required=True, help="a coverage sweep's --out: its starts")
+    parser.add_argument("--cells", nargs="+", required=True, help="graph:N")
+    parser.add_argument("--starts", type=int, default=300, help="the first this many starts of a cell")
+    parser.add_argument("--seed", type=int, help="draw the starts with this seed instead of the sweep's")
+    parser.add_argument("--reference", nargs="+", default=["lloyd_predict"], help="the sweep's kinds")
+    parser.add_argument("--kinds", nargs="+", default=[], help="NAME=SPEC (module docstring)")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--out", type=Path, required=True)
+    args = parser.parse_args(argv)
+    saved = json.loads((args.sweep / "sweep_config.json").read_text())
+    known = {item.name for item in fields(TaskSweepConfig)}
+    config = TaskSweepConfig.from_mapping({k: v for k, v in saved.items() if k in known}, str(args.sweep))
+    reuse = args.seed is None or args.seed == config.seed
+    if args.seed is not None:
+        config = replace(config, seed=args.seed)
+    if args.starts > config.seeds:
+        parser.error(f"--starts: the sweep has {config.seeds} starts a cell")
+    specs = {name: name for name in args.reference}
+    for entry in args.kinds:
+        name, equals, spec = entry.partition("=")
+        if not equals:
+            parser.error(f"--kinds: {entry}: give NAME=SPEC")
+        specs[name] = spec
+    cells_dir = args.out / "cells"
+    cells_dir.mkdir(parents=True, exist_ok=True)
+    (args.out / "sweep_config.json").write_text(json.dumps({"task": "coverage", "seed": config.seed}))
+    jobs: list[tuple] = []
+    parts: dict[Path, list[list[dict] | None]] = {}
+    records: dict[Path, tuple[str, int, str]] = {}
+    for cell_spec in args.cells:  # -- what to copy and what to run
+        graph, count = cell_spec.split(":")[0], int(cell_spec.split(":")[1])
+        poses, adjacency = cell_starts(config, graph, count)
+        poses = poses[: args.starts]
+        adjacency = None if adjacency is None else adjacency[: args.starts]
+        for name, spec in specs.items():
+            path = cells_dir / f"{graph}-N{count}-{name}-loss0.json"
+            if path.is_file():
+                continue
+            committed = args.sweep / "cells" / f"{graph}-N{count}-{name}-loss0.json"
+            if reuse and name == spec and committed.is_file():
+                cell = json.loads(committed.read_text())
+                path.write_text(json.dumps(cell | {"starts": cell["starts"][: args.starts]}) + "\n")
+                continue
+            chunks = cell_chunks(config, len(poses))
+            parts[path] = [None] * len(chunks)
+            records[path] = (graph, count, name)
+            for index, chunk in enumerate(chunks):
+                graph_chunk = None if adjacency is None else adjacency[chunk]
+                jobs.append((path, index, spec, config, count, poses[chunk], graph_chunk))
+    if jobs:  # -- the runs, chunk by chunk; a cell's file when its last chunk is in
+        from multiprocessing import get_context
+
+        began = time.monotonic()
+        with get_context("spawn").Pool(min(args.workers, len(jobs)), initializer=_worker_init) as pool:
+            for done, (path, index, outcomes) in enumerate(pool.imap_unordered(_chunk, jobs), 1):
+                parts[path][index] = outcomes
+                left_s = (time.monotonic() - began) / done * (len(jobs) - done)
+                print(f"{done}/{len(jobs)} chunks, about {left_s / 60:.0f} min left", flush=True)
+                if all(part is not None for part in parts[path]):
+                    graph, count, name = records[path]
+                    every = [outcome for part in parts[path] if part is not None for outcome in part]
+                    path.write_text(json.dumps(cell_record(graph, count, name, 0.0, every)) + "\n")
+    first, others = args.reference[0], [name for name in specs if name != args.reference[0]]
+    made = " ".join(["python bench/investigations/coverage_variants.py", *(argv or sys.argv[1:])])
+    for column in COLUMNS:  # -- the comparison
+        table = args.out / f"paired-{column}.md"
+        code = task_paired.main(
+            [str(args.out), "--kind", first, "--against", *others, "--column", column, "--out", str(table)]
+        )
+        if code != 0:
+            return code
+        note = f"Made by `{made}`: the first {args.starts} starts a cell, seed {config.seed}; kinds {specs}."
+        table.write_text(note + "\n\n" + table.read_text())
+    medians = {
+        path.stem: float(np.median(task_paired.start_values(json.loads(path.read_text()), "first_within_s")))
+        for path in sorted(cells_dir.glob("*.json"))
+    }
+    print(json.dumps(medians, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
