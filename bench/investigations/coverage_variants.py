@@ -15,8 +15,8 @@ writes one cell file per kind into ``--out/cells``:
 cell, every setting) and whose cells are copied, cut to the first ``--starts``, for the kinds it has
 (``--reference``); ``--seed 1`` instead draws other starts (validation starts, which no committed table
 uses), and then every kind runs. Cells already in ``--out/cells`` are read, not run (resumable).
-The comparison: every kind against the first ``--reference`` kind, on ``first_within_s`` and
-``ratio_at_s.10/20/40`` (``--out/paired-*.md``).
+The comparison: each ``--reference`` kind against every kind after it, on ``first_within_s`` and
+``ratio_at_s.10/20/40`` (``--out/paired-<column>.md``).
 
     python bench/investigations/coverage_variants.py --sweep docs/results/tasks/coverage-100-1000 \\
         --cells cycle:100 line:100 --starts 300 --reference lloyd_predict lloyd_gnn \\
@@ -142,17 +142,27 @@ def main(argv: list[str] | None = None) -> int:
                     graph, count, name = records[path]
                     every = [outcome for part in parts[path] if part is not None for outcome in part]
                     path.write_text(json.dumps(cell_record(graph, count, name, 0.0, every)) + "\n")
-    first, others = args.reference[0], [name for name in specs if name != args.reference[0]]
     made = " ".join(["python bench/investigations/coverage_variants.py", *(argv or sys.argv[1:])])
-    for column in COLUMNS:  # -- the comparison
+    note = (
+        f"Made by `{made}`: the first {args.starts} starts a cell, seed {config.seed}; kinds {specs};"
+        " with every other cell of these kinds that the folder holds (earlier runs into the same --out)."
+    )
+    for column in COLUMNS:  # -- the comparison: each reference kind against every later kind
         table = args.out / f"paired-{column}.md"
-        code = task_paired.main(
-            [str(args.out), "--kind", first, "--against", *others, "--column", column, "--out", str(table)]
-        )
-        if code != 0:
-            return code
-        note = f"Made by `{made}`: the first {args.starts} starts a cell, seed {config.seed}; kinds {specs}."
-        table.write_text(note + "\n\n" + table.read_text())
+        parts_text = [note]
+        for place, first in enumerate(args.reference):
+            others = [name for name in list(specs)[place + 1 :]]
+            if not others:
+                continue
+            part = args.out / f".paired-{column}-{first}.md"
+            code = task_paired.main(
+                [str(args.out), "--kind", first, "--against", *others, "--column", column, "--out", str(part)]
+            )
+            if code != 0:
+                return code
+            parts_text.append(part.read_text())
+            part.unlink()
+        table.write_text("\n\n".join(parts_text))
     medians = {
         path.stem: float(np.median(task_paired.start_values(json.loads(path.read_text()), "first_within_s")))
         for path in sorted(cells_dir.glob("*.json"))
