@@ -51,6 +51,7 @@ def files(tmp_path_factory) -> dict[str, Path]:
         "bad_key_scenario": "name: x\nrobots: {count: 3}\ntopology: {kind: cycle}\nbogus: 1\n",
         "bad_yaml_config": "epochs: [1\n",
         "bad_key_config": "bogus_key: 1\n",
+        "bad_value_config": "direction_weight: speed\n",
         "not_a_policy": "this is not an npz file\n",
         "credentials": "robot-0:secret\n",
         "open_scenario": SCENARIO.read_text().replace("sim: {", "sim: {acl: false, ", 1),
@@ -86,7 +87,14 @@ def files(tmp_path_factory) -> dict[str, Path]:
         (["collect", "--samples", "0", "--out", "{out}/c.npz"], "samples"),
         (["train", "--algo", "bc", "--config", "{missing}"], "no such training config file"),
         (["train", "--algo", "bc", "--config", "{bad_yaml_config}"], "invalid YAML"),
-        (["train", "--algo", "bc", "--config", "{bad_key_config}"], "unknown bc option 'bogus_key'"),
+        (
+            ["train", "--algo", "bc", "--config", "{bad_key_config}"],
+            "bad_key_config: unknown bc option 'bogus_key'",
+        ),
+        (
+            ["train", "--algo", "coverage", "--config", "{bad_value_config}"],
+            "bad_value_config: coverage option",
+        ),
         (["train", "--algo", "nope"], "argument --algo: invalid choice"),
         (["fly"], "invalid choice: 'fly'"),
     ],
