@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import sys
 import time
 from dataclasses import fields, replace
@@ -40,7 +39,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))  # bench/, for t
 import task_paired
 
 from swarm.core.robot import RobotParams
-from swarm.scenarios.task_sweep import TaskSweepConfig, cell_chunks, cell_record, cell_starts, chunk_outcomes
+from swarm.scenarios.task_sweep import (
+    TaskSweepConfig,
+    _worker_init,
+    cell_chunks,
+    cell_record,
+    cell_starts,
+    chunk_outcomes,
+)
 from swarm.sim.coverage_controllers import LloydGnn, LloydPredict
 from swarm.sim.coverage_gnn import CoverageGnnWeights
 
@@ -63,13 +69,6 @@ def build(spec: str, config: TaskSweepConfig, count: int):
             weights = replace(weights, meta={**weights.meta, "horizon_ticks": float(horizon)})
         return LloydGnn(robot, config.control_period_s, section, count, weights)
     raise SystemExit(f"--kinds: {spec}: not lloyd_predict:H, gnn:PATH[:H] or a kind's name")
-
-
-def _worker_init() -> None:
-    import numba
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    numba.set_num_threads(1)
 
 
 def _chunk(job: tuple) -> tuple[Path, int, list[dict]]:
@@ -151,7 +150,7 @@ def main(argv: list[str] | None = None) -> int:
         table = args.out / f"paired-{column}.md"
         parts_text = [note]
         for place, first in enumerate(args.reference):
-            others = [name for name in list(specs)[place + 1 :]]
+            others = list(specs)[place + 1 :]
             if not others:
                 continue
             part = args.out / f".paired-{column}-{first}.md"
