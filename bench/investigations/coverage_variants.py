@@ -14,7 +14,9 @@ writes one cell file per kind into ``--out/cells``:
 ``--sweep DIR`` names the sweep whose starts are used (its ``sweep_config.json``: seed, starts per
 cell, every setting) and whose cells are copied, cut to the first ``--starts``, for the kinds it has
 (``--reference``); ``--seed 1`` instead draws other starts (validation starts, which no committed table
-uses), and then every kind runs. Cells already in ``--out/cells`` are read, not run (resumable).
+uses), and then every kind runs. ``--packet-loss p``: the sweep's cells of that loss (chunk c draws its
+losses from seed c, as ``swarm sweep`` does, so a kind rerun here gives the sweep's outcomes). Cells
+already in ``--out/cells`` are read, not run (resumable).
 The comparison: each ``--reference`` kind against every kind after it, on ``first_within_s`` and
 ``ratio_at_s.10/20/40`` (``--out/paired-<column>.md``).
 
@@ -72,9 +74,9 @@ def build(spec: str, config: TaskSweepConfig, count: int):
 
 
 def _chunk(job: tuple) -> tuple[Path, int, list[dict]]:
-    path, index, spec, config, count, poses, adjacency = job
+    path, index, spec, config, count, loss, poses, adjacency = job
     controller = build(spec, config, count)
-    return path, index, chunk_outcomes(config, count, controller, 0.0, index, poses, adjacency)
+    return path, index, chunk_outcomes(config, count, controller, loss, index, poses, adjacency)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -83,6 +85,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cells", nargs="+", required=True, help="graph:N")
     parser.add_argument("--starts", type=int, default=300, help="the first this many starts of a cell")
     parser.add_argument("--seed", type=int, help="draw the starts with this seed instead of the sweep's")
+    parser.add_argument(
+        "--packet-loss",
+        type=float,
+        default=0.0,
+        help="the cells' packet loss (chunk c draws it from seed c, as the sweep does)",
+    )
     parser.add_argument("--reference", nargs="+", default=["lloyd_predict"], help="the sweep's kinds")
     parser.add_argument("--kinds", nargs="+", default=[], help="NAME=SPEC (module docstring)")
     parser.add_argument("--workers", type=int, default=2)
@@ -114,10 +122,11 @@ def main(argv: list[str] | None = None) -> int:
         poses = poses[: args.starts]
         adjacency = None if adjacency is None else adjacency[: args.starts]
         for name, spec in specs.items():
-            path = cells_dir / f"{graph}-N{count}-{name}-loss0.json"
+            file_name = f"{graph}-N{count}-{name}-loss{args.packet_loss:g}.json"
+            path = cells_dir / file_name
             if path.is_file():
                 continue
-            committed = args.sweep / "cells" / f"{graph}-N{count}-{name}-loss0.json"
+            committed = args.sweep / "cells" / file_name
             if reuse and name == spec and committed.is_file():
                 cell = json.loads(committed.read_text())
                 path.write_text(json.dumps(cell | {"starts": cell["starts"][: args.starts]}) + "\n")
@@ -127,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
             records[path] = (graph, count, name)
             for index, chunk in enumerate(chunks):
                 graph_chunk = None if adjacency is None else adjacency[chunk]
-                jobs.append((path, index, spec, config, count, poses[chunk], graph_chunk))
+                jobs.append((path, index, spec, config, count, args.packet_loss, poses[chunk], graph_chunk))
     if jobs:  # -- the runs, chunk by chunk; a cell's file when its last chunk is in
         from multiprocessing import get_context
 
@@ -140,7 +149,8 @@ def main(argv: list[str] | None = None) -> int:
                 if all(part is not None for part in parts[path]):
                     graph, count, name = records[path]
                     every = [outcome for part in parts[path] if part is not None for outcome in part]
-                    path.write_text(json.dumps(cell_record(graph, count, name, 0.0, every)) + "\n")
+                    cell = cell_record(graph, count, name, args.packet_loss, every)
+                    path.write_text(json.dumps(cell) + "\n")
     made = " ".join(["python bench/investigations/coverage_variants.py", *(argv or sys.argv[1:])])
     note = (
         f"Made by `{made}`: the first {args.starts} starts a cell, seed {config.seed}; kinds {specs};"
