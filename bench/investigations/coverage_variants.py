@@ -45,6 +45,7 @@ from swarm.scenarios.task_sweep import (
     TaskSweepConfig,
     _worker_init,
     cell_chunks,
+    cell_file_name,
     cell_record,
     cell_starts,
     chunk_outcomes,
@@ -122,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
         poses = poses[: args.starts]
         adjacency = None if adjacency is None else adjacency[: args.starts]
         for name, spec in specs.items():
-            file_name = f"{graph}-N{count}-{name}-loss{args.packet_loss:g}.json"
+            file_name = cell_file_name(graph, count, name, args.packet_loss)
             path = cells_dir / file_name
             if path.is_file():
                 continue

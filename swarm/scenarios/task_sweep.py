@@ -268,6 +268,11 @@ def run_cell(
     return cell_record(topology, count, controller, loss, outcomes)
 
 
+def cell_file_name(topology: str, count: int, controller: str, loss: float) -> str:
+    """A cell's file below ``--out/cells`` (what ``--resume`` and the investigations look it up by)."""
+    return f"{topology}-N{count}-{controller}-loss{loss:g}.json"
+
+
 def cell_record(topology: str, count: int, controller: str, loss: float, outcomes: list[dict]) -> dict:
     """What a cell file holds."""
     return {
@@ -355,7 +360,7 @@ def run_task_sweep(
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "cells").mkdir(exist_ok=True)
     todo = {  # the small swarms of every graph first: an interrupted sweep has whole tables for them
-        f"{topology}-N{count}-{controller}-loss{loss:g}.json": (topology, count, controller, loss)
+        cell_file_name(topology, count, controller, loss): (topology, count, controller, loss)
         for loss in config.packet_losses
         for count in config.sizes
         for topology in config.topologies
