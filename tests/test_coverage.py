@@ -57,6 +57,50 @@ def test_the_cost_of_one_robot_at_the_centre_of_a_square_is_two_thirds():
     assert math.isclose(float(coverage.locational_cost(np.zeros((1, 2)), points, weights)), 2 / 3 - h * h / 6)
 
 
+def _plain_locational_cost(positions: np.ndarray, points: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """H as the expression reads, with its temporaries, in the same chunks of frames (so the same
+    matrix-vector products): what every committed coverage cell was computed with."""
+    flat = positions.reshape(-1, *positions.shape[-2:])
+    cost = np.empty(len(flat))
+    for start in range(0, len(flat), coverage.FRAMES_PER_CHUNK):
+        chunk = flat[start : start + coverage.FRAMES_PER_CHUNK]
+        nearest = np.full((len(chunk), len(points)), np.inf)
+        for robot in range(chunk.shape[1]):
+            dx, dy = points[None, :, 0] - chunk[:, robot, 0:1], points[None, :, 1] - chunk[:, robot, 1:2]
+            nearest = np.minimum(nearest, dx * dx + dy * dy)
+        cost[start : start + len(chunk)] = nearest @ weights
+    return cost.reshape(positions.shape[:-2])
+
+
+@pytest.mark.parametrize("frames", [1, 31, 32, 33, 70])
+@pytest.mark.parametrize("count", [1, 2, 7, 100])
+def test_the_locational_cost_is_the_plain_expression_bit_for_bit(frames, count):
+    """Far from the origin, robots on one another and on quadrature points (ties), chunks of frames
+    cut anywhere; and within rounding of a per-frame sum of the definition."""
+    rng = np.random.default_rng(frames * 1000 + count)
+    far = section(
+        region=[[1e4, -1e4], [1e4 + 3, -1e4], [1e4 + 3, -1e4 + 2], [1e4, -1e4 + 2]], grid_per_axis=40
+    )
+    for shaped in (section(grid_per_axis=48), far):
+        points, weights = shaped.quadrature()
+        low, high = points.min(axis=0), points.max(axis=0)
+        positions = rng.uniform(low - 0.5, high + 0.5, (frames, count, 2))
+        positions[:, : count // 2] = positions[:, count - count // 2 :][:, : count // 2]  # pairs on one spot
+        positions[::2, 0] = points[rng.integers(len(points), size=len(positions[::2]))]  # on a point
+        fast = coverage.locational_cost(positions, points, weights)
+        assert fast.shape == (frames,)
+        assert np.array_equal(fast, _plain_locational_cost(positions, points, weights))
+        squared = ((points[None, :, None, :] - positions[:, None, :, :]) ** 2).sum(-1).min(-1)
+        assert np.allclose(fast, squared @ weights, rtol=1e-12, atol=0.0)
+    # leading axes kept: (2, 3, N, 2) -> (2, 3)
+    points, weights = section(grid_per_axis=20).quadrature()
+    batch = rng.uniform(-1, 1, (2, 3, count, 2))
+    assert np.array_equal(
+        coverage.locational_cost(batch, points, weights),
+        _plain_locational_cost(batch, points, weights),
+    )
+
+
 def test_the_reference_of_two_robots_in_a_square_is_the_halves():
     """Two robots on [-1, 1]^2: the cells are halves and their centroids (+-0.5, 0) (or the transpose);
     H = 1/12 + 1/3 = 5/12 (the grid's midpoint rule short by h^2/6)."""
