@@ -19,6 +19,7 @@ import pytest
 
 from swarm.core.tasks import registry
 from swarm.scenarios import task_sweep
+from swarm.scenarios.blas import blas_kernel
 from swarm.scenarios.scenario import ScenarioError
 from swarm.scenarios.task_sweep import TaskSweepConfig
 
@@ -137,6 +138,12 @@ def test_the_sweep_command_runs_a_task_and_exits_1_where_a_cell_fails(tmp_path, 
     ]
     assert cells == expected  # the expert, the baseline and the learned GNN
     assert all(json.loads((out / "cells" / c).read_text())["starts"][0]["converged"] for c in cells)
+    # each cell names the BLAS kernel it ran on, and the table counts them
+    assert {json.loads((out / "cells" / c).read_text())["blas"] for c in cells} == {blas_kernel()}
+    assert (
+        f"BLAS kernel of the cells' matrix products (cells): {blas_kernel()} (3)."
+        in (out / "sweep.md").read_text()
+    )
     # --resume reads the cells it has (a marker written into one survives) and runs the missing ones
     marked = out / "cells" / expected[1]
     data = json.loads(marked.read_text())

@@ -31,6 +31,7 @@ import json
 import math
 import signal
 import time
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
@@ -43,6 +44,7 @@ from swarm.core.faults import LinkFaults
 from swarm.core.files import write_atomically
 from swarm.core.robot import RobotParams
 from swarm.core.tasks import registry
+from swarm.scenarios.blas import blas_kernel
 from swarm.scenarios.scenario import ScenarioError
 from swarm.sim.controller_kinds import CONTROLLER_KINDS, ControllerArgs, batched_controller, controller_kind
 from swarm.sim.kinematic import KinematicSim
@@ -274,14 +276,23 @@ def cell_file_name(topology: str, count: int, controller: str, loss: float) -> s
 
 
 def cell_record(topology: str, count: int, controller: str, loss: float, outcomes: list[dict]) -> dict:
-    """What a cell file holds."""
+    """What a cell file holds; ``blas``: the kernel its matrix products ran on (:mod:`swarm.scenarios.blas`;
+    cells written before 2026-12-07 lack it)."""
     return {
         "topology": topology,
         "robots": count,
         "controller": controller,
         "packet_loss": loss,
+        "blas": blas_kernel(),
         "starts": outcomes,
     }
+
+
+def kernels_note(kernels: list[str | None]) -> str:
+    """The tables' line on the BLAS kernels the cells ran on (how many cells each; None: not recorded)."""
+    counts = Counter("not recorded" if kernel is None else kernel for kernel in kernels)
+    listed = ", ".join(f"{kernel} ({number})" for kernel, number in sorted(counts.items()))
+    return f"BLAS kernel of the cells' matrix products (cells): {listed}."
 
 
 _KEPT = ("converged", "ratio_at_s")
@@ -375,6 +386,7 @@ def run_task_sweep(
 
         bar = tqdm(total=len(todo), unit="cell", desc=f"sweep {config.task}")
     rows: dict[str, dict] = {}  # by cell file name, in the order finished
+    kernels: dict[str, str | None] = {}  # by cell file name: the BLAS kernel it ran on
     finished: tuple[str, dict] | None = None  # the cell whose file is being written
 
     def add(name: str, cell: dict, write: bool) -> None:
@@ -383,12 +395,16 @@ def run_task_sweep(
         if write:
             write_atomically(out_dir / "cells" / name, json.dumps(cell) + "\n")
         rows[name] = summarize_cell(cell, config.cells.columns)
+        kernels[name] = cell.get("blas")
         finished = None
         if bar is not None:
             bar.update()
 
     def in_order() -> list[dict]:
         return [rows[name] for name in todo if name in rows]
+
+    def kernels_line() -> str:
+        return kernels_note([kernels.get(name) for name in todo if name in rows])
 
     try:
         if workers > 1:
@@ -414,15 +430,16 @@ def run_task_sweep(
         # a Ctrl-C between a cell's file and its row: the file is there, so is its row
         if finished is not None and finished[0] not in rows and (out_dir / "cells" / finished[0]).is_file():
             rows[finished[0]] = summarize_cell(finished[1], config.cells.columns)
+            kernels[finished[0]] = finished[1].get("blas")
         if rows:
-            note = f"Interrupted after {len(rows)} of {len(todo)} cells."
+            note = f"Interrupted after {len(rows)} of {len(todo)} cells. {kernels_line()}"
             write_tables(out_dir, config, in_order(), note=note)
         raise
     finally:
         if bar is not None:
             bar.close()
     ordered = in_order()
-    write_tables(out_dir, config, ordered)
+    write_tables(out_dir, config, ordered, note=kernels_line())
     plot_task_sweep(out_dir / "sweep.png", config, ordered)
     return ordered
 
