@@ -23,10 +23,10 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import time
 
 import numpy as np
 from _output import add_output_arguments, output_dir, progress
+from bench_coverage_cells import best_time_s
 
 from swarm.core.tasks import coverage
 
@@ -52,15 +52,6 @@ def frames(count: int, frame_count: int, rng: np.random.Generator) -> np.ndarray
     spread = coverage.reference(section, count)[1]
     share = np.linspace(0.0, 1.0, frame_count)[:, None, None]
     return np.ascontiguousarray((1.0 - share) * start + share * spread)
-
-
-def best_time_s(function, repeats: int) -> float:
-    best = float("inf")
-    for _ in range(repeats):
-        began = time.perf_counter()
-        function()
-        best = min(best, time.perf_counter() - began)
-    return best
 
 
 def main(argv: list[str] | None = None) -> int:
