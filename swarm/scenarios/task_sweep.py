@@ -389,13 +389,16 @@ def run_task_sweep(
     kernels: dict[str, str | None] = {}  # by cell file name: the BLAS kernel it ran on
     finished: tuple[str, dict] | None = None  # the cell whose file is being written
 
+    def record(name: str, cell: dict) -> None:  # a written cell's row and kernel
+        rows[name] = summarize_cell(cell, config.cells.columns)
+        kernels[name] = cell.get("blas")
+
     def add(name: str, cell: dict, write: bool) -> None:
         nonlocal finished
         finished = (name, cell)
         if write:
             write_atomically(out_dir / "cells" / name, json.dumps(cell) + "\n")
-        rows[name] = summarize_cell(cell, config.cells.columns)
-        kernels[name] = cell.get("blas")
+        record(name, cell)
         finished = None
         if bar is not None:
             bar.update()
@@ -429,8 +432,7 @@ def run_task_sweep(
     except KeyboardInterrupt:  # keep what is done: the tables of the finished cells, then exit 130
         # a Ctrl-C between a cell's file and its row: the file is there, so is its row
         if finished is not None and finished[0] not in rows and (out_dir / "cells" / finished[0]).is_file():
-            rows[finished[0]] = summarize_cell(finished[1], config.cells.columns)
-            kernels[finished[0]] = finished[1].get("blas")
+            record(*finished)
         if rows:
             note = f"Interrupted after {len(rows)} of {len(todo)} cells. {kernels_line()}"
             write_tables(out_dir, config, in_order(), note=note)
