@@ -21,7 +21,7 @@ from swarm.sim.controller_kinds import (
     batched_controller,
     onboard_controller,
 )
-from swarm.sim.coverage_controllers import cell_sums, centroid_targets
+from swarm.sim.coverage_controllers import _nearest_first, cell_sums, centroid_targets
 from swarm.sim.coverage_onboard import HORIZON_TICKS, cell_centroid, predicted_positions
 from swarm.sim.kinematic import KinematicSim
 
@@ -169,14 +169,14 @@ def _brute_force_sums(own, others, valid, points, weights, radius_sq):
     return out
 
 
-@pytest.mark.parametrize("case", range(40))
+@pytest.mark.parametrize("case", range(48))
 def test_the_cell_kernel_sums_exactly_the_points_of_the_definition(case):
     """``cell_sums`` tests only the points its windows pick and the others that could be nearer; its sums
     must be the definition's bit for bit, on starts snapped to the grid (ties on cell boundaries, robots
     on one spot), far from the origin, swarms of one and two, others unheard, a radius cut, and points
     in another order than grid rows (shuffled, scattered, rows with a gap)."""
     rng = np.random.default_rng(case)
-    count = [1, 2, 3, 7, 12][case % 5]
+    count = [1, 2, 3, 7, 12, 40][case % 6]
     offset = [0.0, 0.0, 1e4, 1e6][case // 10 % 4]
     layout = case % 4
     grid = np.stack(np.meshgrid(np.linspace(-2, 2, 21), np.linspace(-2, 2, 17)), -1).reshape(-1, 2)
@@ -203,6 +203,24 @@ def test_the_cell_kernel_sums_exactly_the_points_of_the_definition(case):
         np.testing.assert_array_equal(sums, expected)
         if radius_sq == math.inf:  # a point is at least its nearest robot's, whoever that one heard
             assert np.all(expected[..., 0].sum(axis=1) >= 1.0 - 1e-9)
+
+
+@pytest.mark.parametrize("case", range(12))
+def test_the_cells_grouping_passes_every_other_within_a_reach_before_it_stops(case):
+    """``_nearest_first`` orders the others so that a scan stopping at the first ``floor_sq`` beyond its
+    reach has passed every other within it: checked against the values it was given, for every reach
+    between and at them, with zeros (robots on one spot), ties, and a range wider than its groups."""
+    rng = np.random.default_rng(case)
+    gap_sq = rng.uniform(0.0, 5.0, 1 + case * 9) ** [1, 2, 4][case % 3]
+    if case % 2 == 0:
+        gap_sq[rng.random(len(gap_sq)) < 0.3] = 0.0
+        gap_sq[rng.random(len(gap_sq)) < 0.3] = gap_sq[0]
+    order, floor_sq = _nearest_first(gap_sq)
+    assert sorted(order.tolist()) == list(range(len(gap_sq)))
+    assert np.all(floor_sq <= gap_sq[order]) and np.all(np.diff(floor_sq) >= 0.0)
+    for reach_sq in np.concatenate([gap_sq, gap_sq * (1 + 1e-12), gap_sq * (1 - 1e-12), [0.0, np.inf]]):
+        stop = int(np.argmax(floor_sq > reach_sq)) if np.any(floor_sq > reach_sq) else len(order)
+        assert set(np.flatnonzero(gap_sq <= reach_sq)) <= set(order[:stop].tolist())
 
 
 def test_an_empty_cell_heads_for_the_density_centroid():
