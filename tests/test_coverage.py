@@ -101,6 +101,32 @@ def test_the_locational_cost_is_the_plain_expression_bit_for_bit(frames, count):
     )
 
 
+@pytest.mark.parametrize("case", range(6))
+def test_the_locational_cost_keeps_the_nearest_of_robots_all_but_equidistant(case):
+    """Robots on a circle around a quadrature point, their radii apart by a few ulps: which is nearest
+    to the point (and to its block's other points) is decided by the last bits, so a robot that the
+    cost's block pruning dropped wrongly would change them."""
+    rng = np.random.default_rng(case)
+    points, weights = section(grid_per_axis=48).quadrature()
+    centre = points[rng.integers(len(points))]
+    count = [3, 12, 40][case % 3]
+    angle = rng.uniform(0, 2 * np.pi, (5, count))
+    radius = [0.05, 0.7][case // 3] * (1.0 + rng.integers(0, 8, (5, count)) * np.finfo(float).eps)
+    positions = centre + radius[..., None] * np.stack([np.cos(angle), np.sin(angle)], -1)
+    assert np.array_equal(
+        coverage.locational_cost(positions, points, weights), _plain_locational_cost(positions, points, weights)
+    )
+
+
+def test_the_locational_cost_carries_a_position_that_is_not_finite_as_the_expression_does():
+    points, weights = section(grid_per_axis=24).quadrature()
+    positions = np.random.default_rng(0).uniform(-1, 1, (4, 6, 2))
+    positions[1, 3, 0], positions[2, 4, 1], positions[3, :, 0] = np.nan, np.inf, np.inf
+    cost = coverage.locational_cost(positions, points, weights)
+    assert np.array_equal(cost, _plain_locational_cost(positions, points, weights), equal_nan=True)
+    assert np.isnan(cost[1]) and np.isfinite(cost[2]) and cost[3] == np.inf
+
+
 def test_the_reference_of_two_robots_in_a_square_is_the_halves():
     """Two robots on [-1, 1]^2: the cells are halves and their centroids (+-0.5, 0) (or the transpose);
     H = 1/12 + 1/3 = 5/12 (the grid's midpoint rule short by h^2/6)."""

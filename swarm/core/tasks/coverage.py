@@ -38,8 +38,12 @@ FRAMES_PER_CHUNK = 32
 the result's bits: the product's rounding may depend on its shape, so this stays 32."""
 
 FRAMES_PER_PASS = 4
-"""Frames whose distances :func:`locational_cost` takes at once (their rows stay in cache: 4 rows of a
-100 x 100 grid are 320 kB); any value gives the same bits."""
+"""Frames whose distances :func:`locational_cost` takes at once (its temporaries stay small); any value
+gives the same bits."""
+
+POINTS_PER_BLOCK = 64
+"""Quadrature points per block of :func:`locational_cost`'s candidate robots; any value gives the same
+bits."""
 
 
 class Gaussian(StrictSection):
@@ -146,34 +150,90 @@ def density_centroid(points: np.ndarray, weights: np.ndarray) -> np.ndarray:
     return weights @ points
 
 
+def _point_blocks(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(members, low, high)``: the quadrature points cut into square-ish blocks of about
+    ``POINTS_PER_BLOCK``, ``members (B, P)`` the indices of each nonempty block's points (a short block
+    padded with its first point), ``low, high (B, 2)`` the corners of its points' bounding box."""
+    side = max(1, round(math.sqrt(len(points) / POINTS_PER_BLOCK)))
+    corner = points.min(axis=0)
+    size = np.maximum((points.max(axis=0) - corner) / side, np.finfo(float).tiny)
+    ij = np.minimum(((points - corner) / size).astype(np.int64), side - 1)
+    block = ij[:, 1] * side + ij[:, 0]
+    order = np.argsort(block, kind="stable")
+    counts = np.bincount(block, minlength=side * side)
+    counts = counts[counts > 0]
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    slot = np.minimum(np.arange(counts.max())[None, :], counts[:, None] - 1)  # (B, P): past the end, the last
+    members = order[starts[:, None] + slot]
+    return members, points[members].min(axis=1), points[members].max(axis=1)
+
+
 def locational_cost(positions: np.ndarray, points: np.ndarray, weights: np.ndarray) -> np.ndarray:
     """``H`` of each configuration ``(..., N, 2)`` (module docstring), in m^2; shape ``(...)``.
 
-    ``sum_g w_g min_i ((x_g - x_i)^2 + (y_g - y_i)^2)``: the minimum is taken one robot at a time into
-    preallocated buffers of ``FRAMES_PER_PASS`` frames (no temporaries, and rows that stay in cache),
-    then each chunk of ``FRAMES_PER_CHUNK`` frames is one matrix-vector product. 1.75x as fast as the
-    plain expression at N = 100 on two busy cores, every bit the same (``bench/results/coverage_cost.md``;
-    ``tests/test_coverage.py`` holds it to the plain expression)."""
+    ``sum_g w_g min_i ((x_g - x_i)^2 + (y_g - y_i)^2)``, the minimum over fewer robots. The points are
+    cut into blocks (:func:`_point_blocks`); per block, a pivot robot (the nearest to the box's centre)
+    and the candidates: the robots ``j`` with ``|c - p_j|^2 - |c - p_pivot|^2 <= 1e-9 S`` at some corner
+    ``c`` of the block's box (``S`` the largest sum of the two over the corners). That difference is
+    linear in ``c``, so a robot left out is farther than the pivot from every point of the box by more
+    than ``1e-9 S``, a million times the rounding of the distances: as computed, too. Each distance of a
+    candidate is the expression's, so each minimum is the one over every robot, bit for bit; each chunk
+    of ``FRAMES_PER_CHUNK`` frames is then one matrix-vector product. At N = 100 on the sweep's grid a
+    block has about 4 candidates, not 100 (``bench/results/coverage_cost.md``; ``tests/test_coverage.py``
+    holds it to the plain expression, on ties and on robots apart by ulps). A non-finite position is
+    every block's candidate, so it reaches the cost as in the expression."""
     positions = np.asarray(positions, dtype=np.float64)
     flat = positions.reshape(-1, *positions.shape[-2:])
     cost = np.empty(len(flat))
-    point_x, point_y = points[None, :, 0], points[None, :, 1]
-    nearest_buffer = np.empty((min(len(flat), FRAMES_PER_CHUNK), len(points)))  # (F, G): min over robots
-    dx_buffer, dy_buffer = np.empty((FRAMES_PER_PASS, len(points))), np.empty((FRAMES_PER_PASS, len(points)))
+    if flat.shape[1] == 0 or len(points) == 0:  # no robot: every point infinitely far; no point: 0
+        cost[:] = np.inf if len(points) else 0.0
+        return cost.reshape(positions.shape[:-2])
+    members, low, high = _point_blocks(points)
+    member_x, member_y = points[members, 0], points[members, 1]  # (B, P)
+    centre_x, centre_y = (
+        0.5 * (low[None, :, 0:1] + high[None, :, 0:1]),
+        0.5 * (low[None, :, 1:2] + high[None, :, 1:2]),
+    )
+    corners = [
+        (low[None, :, 0:1], low[None, :, 1:2]),
+        (low[None, :, 0:1], high[None, :, 1:2]),
+        (high[None, :, 0:1], low[None, :, 1:2]),
+        (high[None, :, 0:1], high[None, :, 1:2]),
+    ]
+    nearest_buffer = np.empty((min(len(flat), FRAMES_PER_CHUNK), len(points)))
     for start in range(0, len(flat), FRAMES_PER_CHUNK):
         chunk = flat[start : start + FRAMES_PER_CHUNK]
         nearest = nearest_buffer[: len(chunk)]
-        nearest.fill(np.inf)
         for first in range(0, len(chunk), FRAMES_PER_PASS):
             part = chunk[first : first + FRAMES_PER_PASS]
-            near, dx, dy = nearest[first : first + len(part)], dx_buffer[: len(part)], dy_buffer[: len(part)]
-            for robot in range(part.shape[1]):
-                np.subtract(point_x, part[:, robot, 0:1], out=dx)
-                np.multiply(dx, dx, out=dx)
-                np.subtract(point_y, part[:, robot, 1:2], out=dy)
-                np.multiply(dy, dy, out=dy)
-                np.add(dx, dy, out=dx)
-                np.minimum(near, dx, out=near)
+            robot_x, robot_y = part[:, None, :, 0], part[:, None, :, 1]  # (F, 1, N) against blocks (1, B, 1)
+            # the pivot: the robot nearest the block's centre; the candidates: whoever its bisector with
+            # the pivot lets nearer at some corner (the pivot itself included, so no block is empty)
+            pivot = ((centre_x - robot_x) ** 2 + (centre_y - robot_y) ** 2).argmin(axis=-1)[..., None]
+            pivot_x, pivot_y = (
+                np.take_along_axis(robot_x[:, 0], pivot[..., 0], -1)[..., None],
+                np.take_along_axis(robot_y[:, 0], pivot[..., 0], -1)[..., None],
+            )
+            candidate = np.zeros(np.broadcast_shapes(robot_x.shape, centre_x.shape), dtype=bool)
+            lead, scale = [], np.zeros(candidate.shape)
+            for corner_x, corner_y in corners:
+                theirs = (corner_x - robot_x) ** 2 + (corner_y - robot_y) ** 2
+                pivots = (corner_x - pivot_x) ** 2 + (corner_y - pivot_y) ** 2
+                with np.errstate(invalid="ignore"):  # inf - inf where robots are at infinity: candidates
+                    lead.append(theirs - pivots)
+                np.maximum(scale, theirs + pivots, out=scale)
+            for difference in lead:
+                candidate |= (difference <= 1e-9 * scale) | ~np.isfinite(difference)
+            # one row per (frame, block, candidate), in (frame, block) groups that each hold the pivot
+            frame, block, robot = np.nonzero(candidate)
+            dx = member_x[block] - part[frame, robot, 0:1]  # (M, P): point minus robot, as the expression
+            dy = member_y[block] - part[frame, robot, 1:2]
+            np.multiply(dx, dx, out=dx)
+            np.multiply(dy, dy, out=dy)
+            np.add(dx, dy, out=dx)
+            group = np.flatnonzero(np.diff(frame * len(members) + block, prepend=-1))
+            block_nearest = np.minimum.reduceat(dx, group, axis=0)  # (F B, P)
+            nearest[first : first + len(part)][:, members.ravel()] = block_nearest.reshape(len(part), -1)
         cost[start : start + len(chunk)] = nearest @ weights
     return cost.reshape(positions.shape[:-2])
 
