@@ -114,7 +114,8 @@ def test_the_locational_cost_keeps_the_nearest_of_robots_all_but_equidistant(cas
     radius = [0.05, 0.7][case // 3] * (1.0 + rng.integers(0, 8, (5, count)) * np.finfo(float).eps)
     positions = centre + radius[..., None] * np.stack([np.cos(angle), np.sin(angle)], -1)
     assert np.array_equal(
-        coverage.locational_cost(positions, points, weights), _plain_locational_cost(positions, points, weights)
+        coverage.locational_cost(positions, points, weights),
+        _plain_locational_cost(positions, points, weights),
     )
 
 
