@@ -318,31 +318,43 @@ def _merge_tables(
     inbox: np.ndarray, index: np.ndarray, positions: np.ndarray, fields: int, memory: np.ndarray
 ) -> None:
     """``memory (B, N, N, fields)``: :meth:`LloydFlood.merge` from ``inbox (B, >= N, N fields)``, the
-    heard senders ``index (B, N, S)`` (-1: none) and ``positions (B, N, 2)``."""
+    heard senders ``index (B, N, S)`` (-1: none) and ``positions (B, N, 2)``.
+
+    Per robot, first the age of every entry and where it comes from: its own table aged by one (itself
+    at age 1), then each heard sender in slot order, taken where its age plus one is less or the entry
+    unknown; then the fields are copied from there. The ages' pass is branch-free over entries, which
+    on a complete graph of 100 (99 senders a robot) is most of a sweep's time."""
     batch, count, slots = index.shape[0], index.shape[1], index.shape[2]
+    ages = np.empty((inbox.shape[1], count))  # every sender's ages, contiguous
+    best = np.empty(count)
+    source = np.empty(count, np.int64)
     for b in range(batch):
+        for sender in range(inbox.shape[1]):
+            for e in range(count):
+                ages[sender, e] = inbox[b, sender, e * fields]
         for i in range(count):
             for e in range(count):
-                age = inbox[b, i, e * fields]
-                memory[b, i, e, 0] = age + 1.0 if age > 0.0 else 0.0
-                for f in range(1, fields):
-                    memory[b, i, e, f] = inbox[b, i, e * fields + f]
-            memory[b, i, i, 0] = 1.0
-            memory[b, i, i, 1] = positions[b, i, 0]
-            memory[b, i, i, 2] = positions[b, i, 1]
+                age = ages[i, e]
+                best[e] = age + 1.0 if age > 0.0 else 0.0
+                source[e] = i
+            best[i] = 1.0
             for slot in range(slots):
                 sender = index[b, i, slot]
                 if sender < 0:
                     continue
                 for e in range(count):
-                    theirs = inbox[b, sender, e * fields]
-                    if theirs <= 0.0:
-                        continue
+                    theirs = ages[sender, e]
                     age = theirs + 1.0
-                    if memory[b, i, e, 0] == 0.0 or age < memory[b, i, e, 0]:
-                        memory[b, i, e, 0] = age
-                        for f in range(1, fields):
-                            memory[b, i, e, f] = inbox[b, sender, e * fields + f]
+                    # taken where known, and younger or the entry unknown (`not <=`: NaN as the plain loop)
+                    take = not theirs <= 0.0 and (best[e] == 0.0 or age < best[e])
+                    best[e] = age if take else best[e]
+                    source[e] = sender if take else source[e]
+            for e in range(count):
+                memory[b, i, e, 0] = best[e]
+                for f in range(1, fields):
+                    memory[b, i, e, f] = inbox[b, source[e], e * fields + f]
+            memory[b, i, i, 1] = positions[b, i, 0]
+            memory[b, i, i, 2] = positions[b, i, 1]
 
 
 @numba.njit(cache=True)
