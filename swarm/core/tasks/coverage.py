@@ -209,11 +209,9 @@ def locational_cost(positions: np.ndarray, points: np.ndarray, weights: np.ndarr
             robot_x, robot_y = part[:, None, :, 0], part[:, None, :, 1]  # (F, 1, N) against blocks (1, B, 1)
             # the pivot: the robot nearest the block's centre; the candidates: whoever its bisector with
             # the pivot lets nearer at some corner (the pivot itself included, so no block is empty)
-            pivot = ((centre_x - robot_x) ** 2 + (centre_y - robot_y) ** 2).argmin(axis=-1)[..., None]
-            pivot_x, pivot_y = (
-                np.take_along_axis(robot_x[:, 0], pivot[..., 0], -1)[..., None],
-                np.take_along_axis(robot_y[:, 0], pivot[..., 0], -1)[..., None],
-            )
+            pivot = ((centre_x - robot_x) ** 2 + (centre_y - robot_y) ** 2).argmin(axis=-1)  # (F, B)
+            pivot_x = np.take_along_axis(robot_x[:, 0], pivot, -1)[..., None]
+            pivot_y = np.take_along_axis(robot_y[:, 0], pivot, -1)[..., None]
             candidate = np.zeros(np.broadcast_shapes(robot_x.shape, centre_x.shape), dtype=bool)
             lead, scale = [], np.zeros(candidate.shape)
             for corner_x, corner_y in corners:
