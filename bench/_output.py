@@ -8,7 +8,10 @@ committed result files (``bench/results/``, or the script's docs folder) are rew
 from __future__ import annotations
 
 import argparse
-from collections.abc import Iterable
+import json
+import os
+import time
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -44,3 +47,54 @@ def progress(iterable: Iterable, args: argparse.Namespace, **options):
     from tqdm import tqdm
 
     return tqdm(iterable, disable=bool(getattr(args, "quiet", False)), **options)
+
+
+def best_time_s(function: Callable[[], object], repeats: int) -> float:
+    """Least wall time of ``repeats`` calls of ``function`` (one untimed call first, to compile)."""
+    function()
+    best = float("inf")
+    for _ in range(repeats):
+        start = time.perf_counter()
+        function()
+        best = min(best, time.perf_counter() - start)
+    return best
+
+
+def write_kernel_result(
+    out_dir: Path,
+    name: str,
+    script: str,
+    argv: list[str] | None,
+    load_before: tuple[float, float, float],
+    rows: list[dict],
+    caption: str,
+    header: list[str],
+    format_row: Callable[[dict], list[str]],
+) -> int:
+    """A kernel-against-reference benchmark's ``name.json`` and ``name.md``, the table printed.
+
+    ``caption`` opens the Markdown; the load average (before, and now) and the script follow it, then a
+    table of ``header`` with one ``format_row(row)`` per row. Every row carries ``same_bits``: the exit
+    code is 0 when every kernel gave its reference's bits, 1 otherwise.
+    """
+    script_name = Path(script).name
+    load_after = os.getloadavg()
+    result = {
+        "command": f"python bench/{script_name} " + " ".join(argv or []),
+        "load_before": load_before,
+        "load_after": load_after,
+        "cpus": os.cpu_count(),
+        "rows": rows,
+    }
+    (out_dir / f"{name}.json").write_text(json.dumps(result, indent=1) + "\n")
+    lines = [
+        f"{caption} Load average {load_before[0]:.1f} before, {load_after[0]:.1f} after,"
+        f" {os.cpu_count()} CPUs. Written by `bench/{script_name}`.",
+        "",
+        "| " + " | ".join(header) + " |",
+        "|" + "---|" * len(header),
+    ]
+    lines += ["| " + " | ".join(format_row(row)) + " |" for row in rows]
+    (out_dir / f"{name}.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+    return 0 if all(row["same_bits"] for row in rows) else 1

@@ -23,13 +23,11 @@ Writes ``coverage_cells.md`` and ``coverage_cells.json`` (with the load average 
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import time
 
 import numba
 import numpy as np
-from _output import add_output_arguments, output_dir, progress
+from _output import add_output_arguments, best_time_s, output_dir, progress, write_kernel_result
 
 from swarm.core.tasks import coverage
 from swarm.sim import coverage_controllers
@@ -70,16 +68,6 @@ def states(count: int, batch: int, rng: np.random.Generator) -> dict[str, np.nda
     start = coverage.sweep_starts(rng, batch, count)[..., :2]
     spread = coverage.reference(section, count)[1][None] + rng.uniform(-0.05, 0.05, (batch, count, 2))
     return {"start": np.ascontiguousarray(start), "spread": np.ascontiguousarray(spread)}
-
-
-def best_time_s(function, repeats: int) -> float:
-    function()  # compiled or loaded, and warm
-    best = float("inf")
-    for _ in range(repeats):
-        began = time.perf_counter()
-        function()
-        best = min(best, time.perf_counter() - began)
-    return best
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -137,33 +125,34 @@ def main(argv: list[str] | None = None) -> int:
                     "same_bits": same_serial and bool(np.array_equal(plain, pruned)),
                 }
             )
-    result = {
-        "command": "python bench/bench_coverage_cells.py " + " ".join(argv or []),
-        "load_before": load_before,
-        "load_after": os.getloadavg(),
-        "cpus": os.cpu_count(),
-        "rows": rows,
-    }
-    (out_dir / "coverage_cells.json").write_text(json.dumps(result, indent=1) + "\n")
-    lines = [
-        "Coverage cells per tick: `cell_sums` against the definition (every point against every known",
+    caption = (
+        "Coverage cells per tick: `cell_sums` against the definition (every point against every known\n"
         f"other), {args.batch} environments, every robot knowing every other; best of {args.repeats}"
-        f" calls, ms per call. Load average {load_before[0]:.1f} before, {result['load_after'][0]:.1f}"
-        f" after, {result['cpus']} CPUs. Written by `bench/bench_coverage_cells.py`.",
-        "",
-        "| N | state | grid points | definition | cell_sums, 1 thread | threaded | speed-up 1 thread"
-        " | threaded | same bits |",
-        "|---|---|---|---|---|---|---|---|---|",
-    ]
-    for row in rows:
-        lines.append(
-            f"| {row['robots']} | {row['state']} | {row['points']} | {row['definition_ms']:.1f}"
-            f" | {row['cell_sums_ms']:.1f} | {row['cell_sums_threaded_ms']:.1f} ({row['threads']})"
-            f" | {row['speedup']:.1f}x | {row['speedup_threaded']:.1f}x | {row['same_bits']} |"
-        )
-    (out_dir / "coverage_cells.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
-    return 0 if all(row["same_bits"] for row in rows) else 1
+        " calls, ms per call."
+    )
+    header = ["N", "state", "grid points", "definition", "cell_sums, 1 thread", "threaded"]
+    header += ["speed-up 1 thread", "threaded", "same bits"]
+    return write_kernel_result(
+        out_dir,
+        "coverage_cells",
+        __file__,
+        argv,
+        load_before,
+        rows,
+        caption,
+        header,
+        lambda row: [
+            str(row["robots"]),
+            row["state"],
+            str(row["points"]),
+            f"{row['definition_ms']:.1f}",
+            f"{row['cell_sums_ms']:.1f}",
+            f"{row['cell_sums_threaded_ms']:.1f} ({row['threads']})",
+            f"{row['speedup']:.1f}x",
+            f"{row['speedup_threaded']:.1f}x",
+            str(row["same_bits"]),
+        ],
+    )
 
 
 if __name__ == "__main__":

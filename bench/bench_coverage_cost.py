@@ -23,12 +23,10 @@ Writes ``coverage_cost.md`` and ``coverage_cost.json`` (with the load average be
 from __future__ import annotations
 
 import argparse
-import json
 import os
 
 import numpy as np
-from _output import add_output_arguments, output_dir, progress
-from bench_coverage_cells import best_time_s
+from _output import add_output_arguments, best_time_s, output_dir, progress, write_kernel_result
 
 from swarm.core.tasks import coverage
 
@@ -92,32 +90,30 @@ def main(argv: list[str] | None = None) -> int:
                 "same_bits": bool(np.array_equal(plain, pruned)),
             }
         )
-    result = {
-        "command": "python bench/bench_coverage_cost.py " + " ".join(argv or []),
-        "load_before": load_before,
-        "load_after": os.getloadavg(),
-        "cpus": os.cpu_count(),
-        "rows": rows,
-    }
-    (out_dir / "coverage_cost.json").write_text(json.dumps(result, indent=1) + "\n")
-    lines = [
+    caption = (
         f"Coverage metric over {args.frames} frames (one 60-s start): `locational_cost` (blocks of points,"
         " a few robots each) against the plain expression (a temporary per operation); best of"
         f" {args.repeats} calls, ms per call."
-        f" Load average {load_before[0]:.1f} before, {result['load_after'][0]:.1f} after,"
-        f" {result['cpus']} CPUs. Written by `bench/bench_coverage_cost.py`.",
-        "",
-        "| N | grid points | plain | locational_cost | speed-up | same bits |",
-        "|---|---|---|---|---|---|",
-    ]
-    for row in rows:
-        lines.append(
-            f"| {row['robots']} | {row['points']} | {row['plain_ms']:.1f} | {row['locational_cost_ms']:.1f}"
-            f" | {row['speedup']:.2f}x | {row['same_bits']} |"
-        )
-    (out_dir / "coverage_cost.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
-    return 0 if all(row["same_bits"] for row in rows) else 1
+    )
+    header = ["N", "grid points", "plain", "locational_cost", "speed-up", "same bits"]
+    return write_kernel_result(
+        out_dir,
+        "coverage_cost",
+        __file__,
+        argv,
+        load_before,
+        rows,
+        caption,
+        header,
+        lambda row: [
+            str(row["robots"]),
+            str(row["points"]),
+            f"{row['plain_ms']:.1f}",
+            f"{row['locational_cost_ms']:.1f}",
+            f"{row['speedup']:.2f}x",
+            str(row["same_bits"]),
+        ],
+    )
 
 
 if __name__ == "__main__":

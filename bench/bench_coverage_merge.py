@@ -22,13 +22,11 @@ Writes ``coverage_merge.md`` and ``coverage_merge.json`` (with the load average 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 
 import numba
 import numpy as np
-from _output import add_output_arguments, output_dir, progress
-from bench_coverage_cells import best_time_s
+from _output import add_output_arguments, best_time_s, output_dir, progress, write_kernel_result
 
 from swarm.sim.coverage_controllers import _merge_tables
 
@@ -113,31 +111,29 @@ def main(argv: list[str] | None = None) -> int:
                     "same_bits": bool(np.array_equal(plain, merged)),
                 }
             )
-    result = {
-        "command": "python bench/bench_coverage_merge.py " + " ".join(argv or []),
-        "load_before": load_before,
-        "load_after": os.getloadavg(),
-        "cpus": os.cpu_count(),
-        "rows": rows,
-    }
-    (out_dir / "coverage_merge.json").write_text(json.dumps(result, indent=1) + "\n")
-    lines = [
+    caption = (
         f"Flood tables' merge per tick: `_merge_tables` against the plain loop, {args.batch} environments,"
-        f" {FIELDS} fields an entry; best of {args.repeats} calls, ms per call, one thread. Load average"
-        f" {load_before[0]:.1f} before, {result['load_after'][0]:.1f} after, {result['cpus']} CPUs."
-        " Written by `bench/bench_coverage_merge.py`.",
-        "",
-        "| N | graph | plain loop | `_merge_tables` | speed-up | same bits |",
-        "|---|---|---|---|---|---|",
-    ]
-    for row in rows:
-        lines.append(
-            f"| {row['robots']} | {row['graph']} | {row['plain_ms']:.2f} | {row['merge_ms']:.2f}"
-            f" | {row['speedup']:.1f}x | {row['same_bits']} |"
-        )
-    (out_dir / "coverage_merge.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
-    return 0 if all(row["same_bits"] for row in rows) else 1
+        f" {FIELDS} fields an entry; best of {args.repeats} calls, ms per call, one thread."
+    )
+    header = ["N", "graph", "plain loop", "`_merge_tables`", "speed-up", "same bits"]
+    return write_kernel_result(
+        out_dir,
+        "coverage_merge",
+        __file__,
+        argv,
+        load_before,
+        rows,
+        caption,
+        header,
+        lambda row: [
+            str(row["robots"]),
+            row["graph"],
+            f"{row['plain_ms']:.2f}",
+            f"{row['merge_ms']:.2f}",
+            f"{row['speedup']:.1f}x",
+            str(row["same_bits"]),
+        ],
+    )
 
 
 if __name__ == "__main__":
