@@ -68,14 +68,14 @@ def write_kernel_result(
     load_before: tuple[float, float, float],
     rows: list[dict],
     caption: str,
-    header: list[str],
-    format_row: Callable[[dict], list[str]],
+    columns: list[tuple[str, str]],
 ) -> int:
     """A kernel-against-reference benchmark's ``name.json`` and ``name.md``, the table printed.
 
-    ``caption`` opens the Markdown; the load average (before, and now) and the script follow it, then a
-    table of ``header`` with one ``format_row(row)`` per row. Every row carries ``same_bits``: the exit
-    code is 0 when every kernel gave its reference's bits, 1 otherwise.
+    ``caption`` opens the Markdown; the load average (before, and now) and the script follow it, then
+    the table, one line a row: ``columns`` are (header, format string of the row's keys), e.g.
+    ``("N", "{robots}")``. Every row carries ``same_bits``: the exit code is 0 when every kernel gave
+    its reference's bits, 1 otherwise.
     """
     script_name = Path(script).name
     load_after = os.getloadavg()
@@ -91,10 +91,10 @@ def write_kernel_result(
         f"{caption} Load average {load_before[0]:.1f} before, {load_after[0]:.1f} after,"
         f" {os.cpu_count()} CPUs. Written by `bench/{script_name}`.",
         "",
-        "| " + " | ".join(header) + " |",
-        "|" + "---|" * len(header),
+        "| " + " | ".join(head for head, _ in columns) + " |",
+        "|" + "---|" * len(columns),
     ]
-    lines += ["| " + " | ".join(format_row(row)) + " |" for row in rows]
+    lines += ["| " + " | ".join(cell.format(**row) for _, cell in columns) + " |" for row in rows]
     (out_dir / f"{name}.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
     return 0 if all(row["same_bits"] for row in rows) else 1

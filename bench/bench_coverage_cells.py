@@ -130,29 +130,18 @@ def main(argv: list[str] | None = None) -> int:
         f"other), {args.batch} environments, every robot knowing every other; best of {args.repeats}"
         " calls, ms per call."
     )
-    header = ["N", "state", "grid points", "definition", "cell_sums, 1 thread", "threaded"]
-    header += ["speed-up 1 thread", "threaded", "same bits"]
-    return write_kernel_result(
-        out_dir,
-        "coverage_cells",
-        __file__,
-        argv,
-        load_before,
-        rows,
-        caption,
-        header,
-        lambda row: [
-            str(row["robots"]),
-            row["state"],
-            str(row["points"]),
-            f"{row['definition_ms']:.1f}",
-            f"{row['cell_sums_ms']:.1f}",
-            f"{row['cell_sums_threaded_ms']:.1f} ({row['threads']})",
-            f"{row['speedup']:.1f}x",
-            f"{row['speedup_threaded']:.1f}x",
-            str(row["same_bits"]),
-        ],
-    )
+    columns = [
+        ("N", "{robots}"),
+        ("state", "{state}"),
+        ("grid points", "{points}"),
+        ("definition", "{definition_ms:.1f}"),
+        ("cell_sums, 1 thread", "{cell_sums_ms:.1f}"),
+        ("threaded", "{cell_sums_threaded_ms:.1f} ({threads})"),
+        ("speed-up 1 thread", "{speedup:.1f}x"),
+        ("threaded", "{speedup_threaded:.1f}x"),
+        ("same bits", "{same_bits}"),
+    ]
+    return write_kernel_result(out_dir, "coverage_cells", __file__, argv, load_before, rows, caption, columns)
 
 
 if __name__ == "__main__":

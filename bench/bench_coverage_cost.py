@@ -95,25 +95,15 @@ def main(argv: list[str] | None = None) -> int:
         " a few robots each) against the plain expression (a temporary per operation); best of"
         f" {args.repeats} calls, ms per call."
     )
-    header = ["N", "grid points", "plain", "locational_cost", "speed-up", "same bits"]
-    return write_kernel_result(
-        out_dir,
-        "coverage_cost",
-        __file__,
-        argv,
-        load_before,
-        rows,
-        caption,
-        header,
-        lambda row: [
-            str(row["robots"]),
-            str(row["points"]),
-            f"{row['plain_ms']:.1f}",
-            f"{row['locational_cost_ms']:.1f}",
-            f"{row['speedup']:.2f}x",
-            str(row["same_bits"]),
-        ],
-    )
+    columns = [
+        ("N", "{robots}"),
+        ("grid points", "{points}"),
+        ("plain", "{plain_ms:.1f}"),
+        ("locational_cost", "{locational_cost_ms:.1f}"),
+        ("speed-up", "{speedup:.2f}x"),
+        ("same bits", "{same_bits}"),
+    ]
+    return write_kernel_result(out_dir, "coverage_cost", __file__, argv, load_before, rows, caption, columns)
 
 
 if __name__ == "__main__":

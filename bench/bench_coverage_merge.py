@@ -115,25 +115,15 @@ def main(argv: list[str] | None = None) -> int:
         f"Flood tables' merge per tick: `_merge_tables` against the plain loop, {args.batch} environments,"
         f" {FIELDS} fields an entry; best of {args.repeats} calls, ms per call, one thread."
     )
-    header = ["N", "graph", "plain loop", "`_merge_tables`", "speed-up", "same bits"]
-    return write_kernel_result(
-        out_dir,
-        "coverage_merge",
-        __file__,
-        argv,
-        load_before,
-        rows,
-        caption,
-        header,
-        lambda row: [
-            str(row["robots"]),
-            row["graph"],
-            f"{row['plain_ms']:.2f}",
-            f"{row['merge_ms']:.2f}",
-            f"{row['speedup']:.1f}x",
-            str(row["same_bits"]),
-        ],
-    )
+    columns = [
+        ("N", "{robots}"),
+        ("graph", "{graph}"),
+        ("plain loop", "{plain_ms:.2f}"),
+        ("`_merge_tables`", "{merge_ms:.2f}"),
+        ("speed-up", "{speedup:.1f}x"),
+        ("same bits", "{same_bits}"),
+    ]
+    return write_kernel_result(out_dir, "coverage_merge", __file__, argv, load_before, rows, caption, columns)
 
 
 if __name__ == "__main__":
