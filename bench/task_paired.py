@@ -85,6 +85,27 @@ def compare(
     return rows
 
 
+def _number(value: float, form: str) -> str:
+    """``value`` as ``form``; ``never`` for a median over starts most of which never got there (inf), and
+    ``-`` for what is then undefined (a difference or interval from an infinite median, a ratio of no
+    start where both got there)."""
+    if value == np.inf:
+        return "never"
+    return format(value, form) if np.isfinite(value) else "-"
+
+
+def _interval(row: dict) -> str:
+    """The difference of the medians and its interval, or ``-`` where a median is infinite."""
+    if not np.isfinite(row["difference"]):
+        return "-"
+    return f"{row['difference']:+.3f} [{_number(row['low'], '+.3f')}, {_number(row['high'], '+.3f')}]"
+
+
+def _undefined(rows: list[dict]) -> bool:
+    """Whether some row has an infinite median or an undefined ratio (the caption then says how it reads)."""
+    return any(not np.isfinite(row[key]) for row in rows for key in ("median", "other_median", "ratio"))
+
+
 def table(rows: list[dict], kind: str, column: str, command: str, resamples: int) -> str:
     lines = [
         f"# `{kind}` against other controllers, start by start: `{column}`",
@@ -93,7 +114,8 @@ def table(rows: list[dict], kind: str, column: str, command: str, resamples: int
         "",
         f"Lower is better. Difference of the medians (`{kind}` minus the other) with its 95% interval from"
         f" a paired bootstrap over the starts ({resamples} resamples); the shares of starts where `{kind}`"
-        " is faster / equal / slower; the median of the per-start ratio (starts where both got there).",
+        " is faster / equal / slower; the median of the per-start ratio (starts where both got there)."
+        + (" `never`: most starts never got there; `-`: undefined then." if _undefined(rows) else ""),
         "",
         f"| graph | N | loss | against | starts | `{kind}` median | other median | difference [95%] |"
         " faster / equal / slower | per-start ratio |",
@@ -102,9 +124,10 @@ def table(rows: list[dict], kind: str, column: str, command: str, resamples: int
     for row in rows:
         lines.append(
             f"| {row['topology']} | {row['robots']} | {row['packet_loss']:.0%} | `{row['against']}` |"
-            f" {row['starts']} | {row['median']:.3f} | {row['other_median']:.3f} |"
-            f" {row['difference']:+.3f} [{row['low']:+.3f}, {row['high']:+.3f}] |"
-            f" {row['faster']:.0%} / {row['equal']:.0%} / {row['slower']:.0%} | {row['ratio']:.3f} |"
+            f" {row['starts']} | {_number(row['median'], '.3f')} | {_number(row['other_median'], '.3f')} |"
+            f" {_interval(row)} |"
+            f" {row['faster']:.0%} / {row['equal']:.0%} / {row['slower']:.0%} |"
+            f" {_number(row['ratio'], '.3f')} |"
         )
     return "\n".join(lines) + "\n"
 

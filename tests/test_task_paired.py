@@ -52,6 +52,30 @@ def test_a_shift_by_a_constant_is_found_and_a_failed_start_is_slower(tmp_path, c
     assert "| cycle | 5 | 0% | `b` | 401 |" in out.read_text()
 
 
+def test_a_controller_that_never_got_there_reads_never_not_nan(tmp_path):
+    """A stalled baseline (``lloyd_local`` on a cycle): its median is no time, and no number is made up."""
+    times = np.random.default_rng(2).uniform(5.0, 20.0, 50).round(3)
+    sweep = _write_sweep(tmp_path / "s", {"a": [*times], "stalled": [None] * len(times)})
+    out = tmp_path / "paired.md"
+    argv = [
+        str(sweep),
+        "--kind",
+        "a",
+        "--against",
+        "stalled",
+        "--column",
+        "first_within_s",
+        "--out",
+        str(out),
+    ]
+    assert task_paired.main(argv) == 0
+    row = next(line for line in out.read_text().splitlines() if "`stalled`" in line)
+    cells = [cell.strip() for cell in row.strip("|").split("|")]
+    assert cells[5:8] == [f"{np.median(times):.3f}", "never", "-"]
+    assert cells[8] == "100% / 0% / 0%" and cells[9] == "-"
+    assert "nan" not in out.read_text() and "inf" not in out.read_text()
+
+
 def test_a_controller_against_itself_differs_by_nothing():
     values = np.random.default_rng(1).uniform(1.0, 2.0, 300)
     row = task_paired.paired_row(values, values.copy(), 200, 0)
