@@ -78,18 +78,18 @@ def write_kernel_result(
     its reference's bits, 1 otherwise.
     """
     script_name = Path(script).name
-    load_after = os.getloadavg()
+    load_after, cpus = os.getloadavg(), os.cpu_count()
     result = {
         "command": f"python bench/{script_name} " + " ".join(argv or []),
         "load_before": load_before,
         "load_after": load_after,
-        "cpus": os.cpu_count(),
+        "cpus": cpus,
         "rows": rows,
     }
     (out_dir / f"{name}.json").write_text(json.dumps(result, indent=1) + "\n")
     lines = [
         f"{caption} Load average {load_before[0]:.1f} before, {load_after[0]:.1f} after,"
-        f" {os.cpu_count()} CPUs. Written by `bench/{script_name}`.",
+        f" {cpus} CPUs. Written by `bench/{script_name}`.",
         "",
         "| " + " | ".join(head for head, _ in columns) + " |",
         "|" + "---|" * len(columns),

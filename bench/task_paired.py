@@ -102,8 +102,9 @@ def _interval(row: dict) -> str:
 
 
 def _undefined(rows: list[dict]) -> bool:
-    """Whether some row has an infinite median or an undefined ratio (the caption then says how it reads)."""
-    return any(not np.isfinite(row[key]) for row in rows for key in ("median", "other_median", "ratio"))
+    """Whether some row shows ``never`` or ``-`` (the caption then says how they read)."""
+    keys = ("median", "other_median", "low", "high", "ratio")
+    return any(not np.isfinite(row[key]) for row in rows for key in keys)
 
 
 def table(rows: list[dict], kind: str, column: str, command: str, resamples: int) -> str:
