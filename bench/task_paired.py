@@ -68,7 +68,8 @@ def paired_row(mine: np.ndarray, other: np.ndarray, resamples: int, seed: int) -
 def compare(
     cells_dir: Path, kind: str, against: list[str], column: str, resamples: int, seed: int
 ) -> list[dict]:
-    """Every (topology, N, loss) of ``cells_dir`` that has ``kind`` and some of ``against``."""
+    """Every (topology, N, loss) of ``cells_dir`` that has ``kind`` and some of ``against``, ordered by
+    topology name, then N and loss as numbers (not as the file names sort: 100 before 12)."""
     rows = []
     for path in sorted(cells_dir.glob(f"*-{kind}-loss*.json")):
         cell = json.loads(path.read_text())
@@ -82,7 +83,7 @@ def compare(
                 raise ValueError(f"{other_path}: {len(other)} starts, {path.name} has {len(mine)}")
             row = {key: cell[key] for key in ("topology", "robots", "packet_loss")}
             rows.append({**row, "against": other_kind, **paired_row(mine, other, resamples, seed)})
-    return rows
+    return sorted(rows, key=lambda row: (row["topology"], row["robots"], row["packet_loss"]))
 
 
 def _number(value: float, form: str) -> str:

@@ -76,6 +76,25 @@ def test_a_controller_that_never_got_there_reads_never_not_nan(tmp_path):
     assert "nan" not in out.read_text() and "inf" not in out.read_text()
 
 
+def test_rows_come_in_the_order_of_n_and_loss_as_numbers(tmp_path):
+    """The cells of N = 6, 12 and 100 (whose file names sort 100, 12, 6) at two losses: rows go by topology,
+    then N and loss as numbers."""
+    cells = tmp_path / "s" / "cells"
+    cells.mkdir(parents=True)
+    (tmp_path / "s" / "sweep_config.json").write_text(json.dumps({"task": "coverage"}))
+    for topology in ("line", "cycle"):
+        for count in (100, 6, 12):
+            for loss in (0.5, 0.2):
+                for kind in ("a", "b"):
+                    starts = [{"converged": True, "first_within_s": float(count)}]
+                    cell = {"topology": topology, "robots": count, "controller": kind, "packet_loss": loss}
+                    name = f"{topology}-N{count}-{kind}-loss{loss:g}.json"
+                    (cells / name).write_text(json.dumps({**cell, "starts": starts}))
+    rows = task_paired.compare(cells, "a", ["b"], "first_within_s", 10, 0)
+    order = [(row["topology"], row["robots"], row["packet_loss"]) for row in rows]
+    assert order == [(g, n, loss) for g in ("cycle", "line") for n in (6, 12, 100) for loss in (0.2, 0.5)]
+
+
 def test_a_controller_against_itself_differs_by_nothing():
     values = np.random.default_rng(1).uniform(1.0, 2.0, 300)
     row = task_paired.paired_row(values, values.copy(), 200, 0)
