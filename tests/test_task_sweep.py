@@ -306,6 +306,11 @@ def test_a_sweep_run_in_parts_with_resume_writes_what_one_run_writes(tmp_path):
     with pytest.raises(ScenarioError, match="only the topologies, sizes, controllers and packet losses"):
         task_sweep.run_task_sweep(whole.with_overrides({"seeds": 3}), parts, progress=False, resume=True)
     assert {p.name: p.read_bytes() for p in (parts / "cells").iterdir()} == before
+    # cells without the sweep_config.json that tells their settings (copied alone): refused, not run again
+    (parts / "sweep_config.json").unlink()
+    with pytest.raises(ScenarioError, match=r"no \S*sweep_config\.json to tell their settings"):
+        task_sweep.run_task_sweep(whole, parts, progress=False, resume=True)
+    assert {p.name: p.read_bytes() for p in (parts / "cells").iterdir()} == before
 
 
 @pytest.mark.slow
