@@ -363,18 +363,19 @@ def run_task_sweep(
     if workers < 1:
         raise ScenarioError(f"workers: must be at least 1, not {workers}")
     reuse = resume and reusable_cells(config, out_dir)
-    if resume and not reuse and (out_dir / "sweep_config.json").is_file():
-        raise ScenarioError(
-            f"--resume: {out_dir / 'sweep_config.json'} has other settings than this sweep (only"
-            " the topologies, sizes, controllers and packet losses may differ); give another --out"
-        )
-    held = sorted((out_dir / "cells").glob("*.json")) if resume and not reuse else []
-    if held:  # cells whose settings nothing tells: neither read nor overwritten
-        raise ScenarioError(
-            f"--resume: {out_dir / 'cells'} holds {len(held)} cell files (e.g. {held[0].name}) but there is"
-            f" no {out_dir / 'sweep_config.json'} to tell their settings; copy the sweep_config.json of"
-            " the sweep that wrote them beside cells/, or give another --out"
-        )
+    if resume and not reuse:  # nothing there to read: refused where cells would be run over
+        if (out_dir / "sweep_config.json").is_file():
+            raise ScenarioError(
+                f"--resume: {out_dir / 'sweep_config.json'} has other settings than this sweep (only"
+                " the topologies, sizes, controllers and packet losses may differ); give another --out"
+            )
+        held = sorted((out_dir / "cells").glob("*.json"))
+        if held:  # cells whose settings nothing tells: neither read nor overwritten
+            raise ScenarioError(
+                f"--resume: {out_dir / 'cells'} holds {len(held)} cell files (e.g. {held[0].name}) but there"
+                f" is no {out_dir / 'sweep_config.json'} to tell their settings; copy the sweep_config.json"
+                " of the sweep that wrote them beside cells/, or give another --out"
+            )
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "cells").mkdir(exist_ok=True)
     todo = {  # the small swarms of every graph first: an interrupted sweep has whole tables for them
