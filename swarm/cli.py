@@ -236,8 +236,9 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             raise UsageError(f"{args.config}: a sweep config is a mapping of settings")
     if args.task not in (None, "rendezvous") or data.get("task") not in (None, "rendezvous"):
         return _task_sweep(args, data)
-    if args.resume:
-        raise UsageError("--resume: a task sweep setting (--task formation or coverage)")
+    for flag, given in (("--resume", args.resume), ("--tables-only", args.tables_only)):
+        if given:
+            raise UsageError(f"{flag}: a task sweep setting (--task formation or coverage)")
     data.pop("task", None)
     config = SweepConfig()
     if args.config:
@@ -292,7 +293,12 @@ def _task_sweep(args: argparse.Namespace, data: dict) -> int:
     _check_out_dir("--out", args.out)
     out_dir = Path(args.out)
     rows = run_task_sweep(
-        config, out_dir, progress=not args.quiet, resume=args.resume, workers=args.workers or 1
+        config,
+        out_dir,
+        progress=not args.quiet,
+        resume=args.resume,
+        workers=args.workers or 1,
+        tables_only=args.tables_only,
     )
     failed = [row for row in rows if row["success_rate"] < 1.0]
     print(
@@ -598,6 +604,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="task sweeps: read the cells --out already holds from a sweep of the same settings (its"
         " topologies, sizes, controllers and packet losses may differ) instead of running them again:"
         " a long sweep can be run in parts, e.g. one graph at a time",
+    )
+    sweep.add_argument(
+        "--tables-only",
+        action="store_true",
+        help="task sweeps: run no cell; rebuild sweep.md, sweep.csv and sweep.png from the cells --out"
+        " holds (as --resume reads them); exit 2, writing nothing, if any cell of the lists is missing",
     )
     sweep.set_defaults(handler=cmd_sweep)
 

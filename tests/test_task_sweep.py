@@ -177,6 +177,8 @@ def test_the_sweep_command_runs_a_task_and_exits_1_where_a_cell_fails(tmp_path, 
             "model: none of the controllers takes one (the task's learned kinds: capt_gnn)",
         ),
         (["--task", "coverage", "--topologies", "wheel"], "topologies: unknown topology 'wheel'"),
+        (["--tables-only"], "--tables-only: a task sweep setting"),
+        (["--task", "coverage", "--tables-only"], "--tables-only: no "),
     ],
 )
 def test_bad_task_sweeps_exit_2_and_say_why(argv, message, tmp_path, capsys):
@@ -301,6 +303,24 @@ def test_a_sweep_run_in_parts_with_resume_writes_what_one_run_writes(tmp_path):
     task_sweep.run_task_sweep(whole, parts, progress=False, resume=True)  # the tables of the true cells
     for table in ("sweep.md", "sweep.csv", "sweep_config.json"):
         assert (once / table).read_bytes() == (parts / table).read_bytes(), table
+    # --tables-only: a narrower part's tables, then the whole's again from the cells, running none
+    task_sweep.run_task_sweep(first, parts, progress=False, resume=True)
+    assert (once / "sweep.md").read_bytes() != (parts / "sweep.md").read_bytes()
+    stamps = {p.name: p.stat().st_mtime_ns for p in (parts / "cells").iterdir()}
+    task_sweep.run_task_sweep(whole, parts, progress=False, tables_only=True, workers=2)
+    assert {p.name: p.stat().st_mtime_ns for p in (parts / "cells").iterdir()} == stamps
+    for table in ("sweep.md", "sweep.csv", "sweep_config.json"):
+        assert (once / table).read_bytes() == (parts / table).read_bytes(), table
+    # ... and with a cell missing it names it and writes nothing (no table, no cell run)
+    gone = parts / "cells" / "cycle-N4-lloyd_flood-loss0.json"
+    kept = gone.read_bytes()
+    gone.unlink()
+    tables = {name: (parts / name).read_bytes() for name in ("sweep.md", "sweep.csv", "sweep_config.json")}
+    with pytest.raises(ScenarioError, match=r"lacks 1 of the 16 cells \(cycle-N4-lloyd_flood-loss0\.json\)"):
+        task_sweep.run_task_sweep(whole, parts, progress=False, tables_only=True)
+    assert not gone.exists()
+    assert {name: (parts / name).read_bytes() for name in tables} == tables
+    gone.write_bytes(kept)
     # another setting than the lists: refused, nothing written
     before = {p.name: p.read_bytes() for p in (parts / "cells").iterdir()}
     with pytest.raises(ScenarioError, match="only the topologies, sizes, controllers and packet losses"):

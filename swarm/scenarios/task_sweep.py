@@ -353,31 +353,38 @@ def reusable_cells(config: TaskSweepConfig, out_dir: Path) -> bool:
 
 
 def run_task_sweep(
-    config: TaskSweepConfig, out_dir: Path, progress: bool = True, resume: bool = False, workers: int = 1
+    config: TaskSweepConfig,
+    out_dir: Path,
+    progress: bool = True,
+    resume: bool = False,
+    workers: int = 1,
+    tables_only: bool = False,
 ) -> list[dict]:
     """Run every cell, write ``sweep.csv``, ``sweep.md``, ``sweep.png`` and ``cells/``; the rows.
     ``resume``: a cell whose file ``out_dir`` already holds from a sweep of the same settings
     (:func:`reusable_cells`; other lists of graphs, sizes, controllers or losses allowed) is read, not
-    run again; with other settings there, ScenarioError. ``workers`` > 1: the cells' chunks of starts
-    run in that many processes (one numba thread each); every cell file is the same as with one."""
+    run again; with other settings there, ScenarioError. ``tables_only``: ``resume`` that runs no cell:
+    the tables of the cells ``out_dir`` holds, ScenarioError (nothing written) naming those it lacks.
+    ``workers`` > 1: the cells' chunks of starts run in that many processes (one numba thread each);
+    every cell file is the same as with one."""
     if workers < 1:
         raise ScenarioError(f"workers: must be at least 1, not {workers}")
+    resume = resume or tables_only
+    flag = "--tables-only" if tables_only else "--resume"
     reuse = resume and reusable_cells(config, out_dir)
     if resume and not reuse:  # nothing there to read: refused where cells would be run over
         if (out_dir / "sweep_config.json").is_file():
             raise ScenarioError(
-                f"--resume: {out_dir / 'sweep_config.json'} has other settings than this sweep (only"
+                f"{flag}: {out_dir / 'sweep_config.json'} has other settings than this sweep (only"
                 " the topologies, sizes, controllers and packet losses may differ); give another --out"
             )
         held = sorted((out_dir / "cells").glob("*.json"))
         if held:  # cells whose settings nothing tells: neither read nor overwritten
             raise ScenarioError(
-                f"--resume: {out_dir / 'cells'} holds {len(held)} cell files (e.g. {held[0].name}) but there"
+                f"{flag}: {out_dir / 'cells'} holds {len(held)} cell files (e.g. {held[0].name}) but there"
                 f" is no {out_dir / 'sweep_config.json'} to tell their settings; copy the sweep_config.json"
                 " of the sweep that wrote them beside cells/, or give another --out"
             )
-    out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "cells").mkdir(exist_ok=True)
     todo = {  # the small swarms of every graph first: an interrupted sweep has whole tables for them
         cell_file_name(topology, count, controller, loss): (topology, count, controller, loss)
         for loss in config.packet_losses
@@ -386,8 +393,26 @@ def run_task_sweep(
         for controller in config.chosen_controllers
         if not (loss > 0 and controller_kind(controller).central)
     }
+    if tables_only:
+        if not reuse:
+            raise ScenarioError(
+                f"--tables-only: no {out_dir / 'sweep_config.json'}: no sweep's cells to read"
+            )
+        lacking = [name for name in todo if not (out_dir / "cells" / name).is_file()]
+        if lacking:
+            raise ScenarioError(
+                f"--tables-only: {out_dir / 'cells'} lacks {len(lacking)} of the {len(todo)} cells"
+                f" ({', '.join(lacking[:3])}{', ...' if len(lacking) > 3 else ''}); run them with --resume"
+                " or narrow the lists"
+            )
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "cells").mkdir(exist_ok=True)
     # drawn once, before any run: starts that cannot be drawn are bad input, refused before any work
-    starts = {(t, n): cell_starts(config, t, n) for t in config.topologies for n in config.sizes}
+    starts = (
+        {}
+        if tables_only
+        else {(t, n): cell_starts(config, t, n) for t in config.topologies for n in config.sizes}
+    )
     bar = None
     if progress:
         from tqdm import tqdm
@@ -418,7 +443,7 @@ def run_task_sweep(
         return kernels_note([kernels.get(name) for name in todo if name in rows])
 
     try:
-        if workers > 1:
+        if workers > 1 and not tables_only:
             _run_in_workers(config, todo, starts, out_dir if reuse else None, workers, add, bar)
         for name, (topology, count, controller, loss) in todo.items():
             if name in rows:
