@@ -18,6 +18,11 @@ that never came within 1.05 H_ref) counts as slower than every time.
         --against lloyd_flood lloyd_predict --column first_within_s \\
         --out docs/results/tasks/coverage-1000-50/paired.md
 
+With ``--out``, a plot beside the table (``paired.png``): one row per cell, each difference of the
+medians as a point with its interval, one colour per controller compared against, a line at 0 (left
+of it ``--kind`` is faster); a difference that is undefined (a median that never got there) is named at
+the row's right instead of drawn.
+
 The column defaults to the task's first in ``sweep.md`` (coverage ``ratio_at_s.5``, formation
 ``ratio_to_lower_bound``); ``a.b`` is key ``b`` of mapping ``a`` (``ratio_at_s.20``).
 """
@@ -134,6 +139,77 @@ def table(rows: list[dict], kind: str, column: str, command: str, resamples: int
     return "\n".join(lines) + "\n"
 
 
+def plot(rows: list[dict], kind: str, column: str, path: Path) -> int:
+    """A forest plot of ``rows`` at ``path`` (module docstring); the number of differences drawn."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cells = list(dict.fromkeys((row["topology"], row["robots"], row["packet_loss"]) for row in rows))
+    against = list(dict.fromkeys(row["against"] for row in rows))
+    figure, axes = plt.subplots(figsize=(7.0, 1.2 + 0.32 * len(cells)))
+    offset = {
+        other: 0.25 * (j - (len(against) - 1) / 2) / max(1, len(against) - 1)
+        for j, other in enumerate(against)
+    }
+    drawn = 0
+    labelled: set[str] = set()
+    for j, other in enumerate(against):
+        for row in rows:
+            if row["against"] != other:
+                continue
+            at = cells.index((row["topology"], row["robots"], row["packet_loss"])) + offset[other]
+            note = ""
+            if not np.isfinite(row["difference"]):  # a median that never got there
+                note = f"{other}: never got there"
+            else:
+                bounded = np.isfinite(row["low"]) and np.isfinite(row["high"])
+                spread = (
+                    [[row["difference"] - row["low"]], [row["high"] - row["difference"]]] if bounded else None
+                )
+                axes.errorbar(
+                    [row["difference"]],
+                    [at],
+                    xerr=spread,
+                    fmt="o",
+                    ms=4,
+                    capsize=2,
+                    color=f"C{j}",
+                    label=f"against {other}" if other not in labelled else None,
+                )
+                labelled.add(other)
+                drawn += 1
+                note = "" if bounded else f"{other}: no interval"
+            if note:
+                axes.annotate(
+                    note,
+                    (1.01, at),
+                    xycoords=("axes fraction", "data"),
+                    ha="left",
+                    va="center",
+                    fontsize=7,
+                    color=f"C{j}",
+                )
+    axes.axvline(0.0, color="0.4", lw=0.8)
+    axes.set_yticks(
+        range(len(cells)), [f"{g} N={n}" + (f" loss {loss:.0%}" if loss else "") for g, n, loss in cells]
+    )
+    axes.invert_yaxis()
+    axes.set_xlabel(
+        f"difference of the medians of {column}, {kind} minus the other"
+        f"\n(95% paired bootstrap; left of 0: {kind} lower)"
+    )
+    if labelled:
+        axes.legend(
+            fontsize=8, loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=len(labelled), frameon=False
+        )
+    axes.grid(axis="x", alpha=0.3)
+    figure.savefig(path, dpi=120, bbox_inches="tight")  # the notes right of the axes included
+    plt.close(figure)
+    return drawn
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("sweep", type=Path, help="a task sweep's --out (its cells/ and sweep_config.json)")
@@ -142,7 +218,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--column", help="the outcome compared (default: the task's first column)")
     parser.add_argument("--resamples", type=int, default=4000, help="bootstrap resamples (default 4000)")
     parser.add_argument("--seed", type=int, default=0, help="the bootstrap's seed (default 0)")
-    parser.add_argument("--out", type=Path, help="write the table here (default: print it)")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        help="write the table here and its plot beside it, .png (default: print the table)",
+    )
     args = parser.parse_args(argv)
     config_path = args.sweep / "sweep_config.json"
     if not config_path.is_file() or not (args.sweep / "cells").is_dir():
@@ -173,7 +253,9 @@ def main(argv: list[str] | None = None) -> int:
     text = table(rows, args.kind, column, command, args.resamples)
     if args.out:
         args.out.write_text(text)
-        print(f"task_paired: {len(rows)} comparisons in {args.out}")
+        figure = args.out.with_suffix(".png")
+        plot(rows, args.kind, column, figure)
+        print(f"task_paired: {len(rows)} comparisons in {args.out}, plotted in {figure}")
     else:
         print(text, end="")
     return 0

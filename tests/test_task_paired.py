@@ -50,6 +50,8 @@ def test_a_shift_by_a_constant_is_found_and_a_failed_start_is_slower(tmp_path, c
     # every resample draws the same starts for both: a shift of 0.5 s on all but one start
     assert abs(against_b["difference"] + 0.5) < 0.1 and against_b["high"] < 0
     assert "| cycle | 5 | 0% | `b` | 401 |" in out.read_text()
+    assert (tmp_path / "paired.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"  # the plot beside it
+    assert task_paired.plot(rows, "a", "first_within_s", tmp_path / "again.png") == 2  # both differences
 
 
 def test_a_controller_that_never_got_there_reads_never_not_nan(tmp_path):
@@ -74,6 +76,8 @@ def test_a_controller_that_never_got_there_reads_never_not_nan(tmp_path):
     assert cells[5:8] == [f"{np.median(times):.3f}", "never", "-"]
     assert cells[8] == "100% / 0% / 0%" and cells[9] == "-"
     assert "nan" not in out.read_text() and "inf" not in out.read_text()
+    rows = task_paired.compare(sweep / "cells", "a", ["stalled"], "first_within_s", 100, 0)
+    assert task_paired.plot(rows, "a", "first_within_s", tmp_path / "p.png") == 0  # named, not drawn
 
 
 def test_rows_come_in_the_order_of_n_and_loss_as_numbers(tmp_path):
