@@ -629,6 +629,9 @@ def plot_task_sweep(path: Path, config: TaskSweepConfig, rows: list[dict]) -> No
         ax.set_xlabel("robots N")
         ax.set_ylabel(f"{column} (median, p95)")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize="small")
+        if values:
+            ax.legend(fontsize="small")
+        else:  # every controller's column undefined here (no start has it): said, not left blank
+            ax.text(0.5, 0.5, f"no start has {column}", transform=ax.transAxes, ha="center", va="center")
     fig.suptitle(f"swarm sweep --task {config.task}: {config.seeds} starts per cell")
     plots.save(fig, path)
