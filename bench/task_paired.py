@@ -153,44 +153,44 @@ def plot(rows: list[dict], kind: str, column: str, path: Path) -> int:
         other: 0.25 * (j - (len(against) - 1) / 2) / max(1, len(against) - 1)
         for j, other in enumerate(against)
     }
+    place = {cell: at for at, cell in enumerate(cells)}
     drawn = 0
     labelled: set[str] = set()
-    for j, other in enumerate(against):
-        for row in rows:
-            if row["against"] != other:
-                continue
-            at = cells.index((row["topology"], row["robots"], row["packet_loss"])) + offset[other]
-            note = ""
-            if not np.isfinite(row["difference"]):  # a median that never got there
-                note = f"{other}: never got there"
-            else:
-                bounded = np.isfinite(row["low"]) and np.isfinite(row["high"])
-                spread = (
-                    [[row["difference"] - row["low"]], [row["high"] - row["difference"]]] if bounded else None
-                )
-                axes.errorbar(
-                    [row["difference"]],
-                    [at],
-                    xerr=spread,
-                    fmt="o",
-                    ms=4,
-                    capsize=2,
-                    color=f"C{j}",
-                    label=f"against {other}" if other not in labelled else None,
-                )
-                labelled.add(other)
-                drawn += 1
-                note = "" if bounded else f"{other}: no interval"
-            if note:
-                axes.annotate(
-                    note,
-                    (1.01, at),
-                    xycoords=("axes fraction", "data"),
-                    ha="left",
-                    va="center",
-                    fontsize=7,
-                    color=f"C{j}",
-                )
+    for row in rows:
+        other = row["against"]
+        colour = f"C{against.index(other)}"
+        at = place[row["topology"], row["robots"], row["packet_loss"]] + offset[other]
+        note = ""
+        if not np.isfinite(row["difference"]):  # a median that never got there
+            note = f"{other}: never got there"
+        else:
+            bounded = np.isfinite(row["low"]) and np.isfinite(row["high"])
+            spread = (
+                [[row["difference"] - row["low"]], [row["high"] - row["difference"]]] if bounded else None
+            )
+            axes.errorbar(
+                [row["difference"]],
+                [at],
+                xerr=spread,
+                fmt="o",
+                ms=4,
+                capsize=2,
+                color=colour,
+                label=f"against {other}" if other not in labelled else None,
+            )
+            labelled.add(other)
+            drawn += 1
+            note = "" if bounded else f"{other}: no interval"
+        if note:
+            axes.annotate(
+                note,
+                (1.01, at),
+                xycoords=("axes fraction", "data"),
+                ha="left",
+                va="center",
+                fontsize=7,
+                color=colour,
+            )
     axes.axvline(0.0, color="0.4", lw=0.8)
     axes.set_yticks(
         range(len(cells)), [f"{g} N={n}" + (f" loss {loss:.0%}" if loss else "") for g, n, loss in cells]

@@ -385,6 +385,10 @@ def run_task_sweep(
                 f" is no {out_dir / 'sweep_config.json'} to tell their settings; copy the sweep_config.json"
                 " of the sweep that wrote them beside cells/, or give another --out"
             )
+        if tables_only:  # neither settings nor cells there
+            raise ScenarioError(
+                f"--tables-only: no {out_dir / 'sweep_config.json'}: no sweep's cells to read"
+            )
     todo = {  # the small swarms of every graph first: an interrupted sweep has whole tables for them
         cell_file_name(topology, count, controller, loss): (topology, count, controller, loss)
         for loss in config.packet_losses
@@ -393,18 +397,13 @@ def run_task_sweep(
         for controller in config.chosen_controllers
         if not (loss > 0 and controller_kind(controller).central)
     }
-    if tables_only:
-        if not reuse:
-            raise ScenarioError(
-                f"--tables-only: no {out_dir / 'sweep_config.json'}: no sweep's cells to read"
-            )
-        lacking = [name for name in todo if not (out_dir / "cells" / name).is_file()]
-        if lacking:
-            raise ScenarioError(
-                f"--tables-only: {out_dir / 'cells'} lacks {len(lacking)} of the {len(todo)} cells"
-                f" ({', '.join(lacking[:3])}{', ...' if len(lacking) > 3 else ''}); run them with --resume"
-                " or narrow the lists"
-            )
+    lacking = [name for name in todo if not (out_dir / "cells" / name).is_file()] if tables_only else []
+    if lacking:
+        raise ScenarioError(
+            f"--tables-only: {out_dir / 'cells'} lacks {len(lacking)} of the {len(todo)} cells"
+            f" ({', '.join(lacking[:3])}{', ...' if len(lacking) > 3 else ''}); run them with --resume"
+            " or narrow the lists"
+        )
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "cells").mkdir(exist_ok=True)
     # drawn once, before any run: starts that cannot be drawn are bad input, refused before any work
