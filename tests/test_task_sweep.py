@@ -333,6 +333,30 @@ def test_a_sweep_run_in_parts_with_resume_writes_what_one_run_writes(tmp_path):
     assert {p.name: p.read_bytes() for p in (parts / "cells").iterdir()} == before
 
 
+def test_resume_says_when_the_cells_there_ran_on_another_blas_kernel(tmp_path, caplog):
+    """Cells written on another machine's BLAS kernel: a resume that runs new cells says so, naming the
+    kernel, one such cell and the setting that matches it; a resume with nothing to run, or among cells
+    of this process's kernel, says nothing. The oracle is the kernel written into the cell file."""
+    config = _small("coverage", topologies=["cycle"], controllers=["lloyd_flood"])
+    out = tmp_path / "out"
+    task_sweep.run_task_sweep(config, out, progress=False)
+    wider = config.with_overrides({"controllers": ["lloyd_flood", "lloyd_gnn"]})
+    more = config.with_overrides({"controllers": ["lloyd_gnn"], "sizes": [5]})
+    with caplog.at_level("WARNING", logger="swarm.scenarios.task_sweep"):
+        task_sweep.run_task_sweep(wider, out, progress=False, resume=True)  # same kernel: silent
+        assert caplog.records == []
+        moved = out / "cells" / "cycle-N4-lloyd_flood-loss0.json"
+        moved.write_text(json.dumps({**json.loads(moved.read_text()), "blas": "openblas Elsewhere"}) + "\n")
+        task_sweep.run_task_sweep(wider, out, progress=False, resume=True)  # nothing to run: silent
+        assert caplog.records == []
+        task_sweep.run_task_sweep(more, out, progress=False, resume=True)
+    (record,) = caplog.records
+    message = record.getMessage()
+    assert "1 of the cells" in message and "openblas Elsewhere" in message and moved.name in message
+    assert f"this process on {blas_kernel()}" in message and "OPENBLAS_CORETYPE=Elsewhere" in message
+    assert (out / "cells" / "cycle-N5-lloyd_gnn-loss0.json").is_file()  # said, and run
+
+
 @pytest.mark.slow
 def test_ctrl_c_in_worker_processes_keeps_the_finished_cells_and_leaves_no_worker(tmp_path):
     """``--workers 2`` interrupted after its first cell by a Ctrl-C as a terminal sends it (to the whole

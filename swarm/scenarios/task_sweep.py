@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import csv
 import json
+import logging
 import math
 import signal
 import time
@@ -48,6 +49,8 @@ from swarm.scenarios.blas import blas_kernel
 from swarm.scenarios.scenario import ScenarioError
 from swarm.sim.controller_kinds import CONTROLLER_KINDS, ControllerArgs, batched_controller, controller_kind
 from swarm.sim.kinematic import KinematicSim
+
+log = logging.getLogger(__name__)
 
 GRAPHS = ("complete", "cycle", "line", "random", "disk")
 DISK_ATTEMPTS = 200
@@ -288,6 +291,16 @@ def cell_record(topology: str, count: int, controller: str, loss: float, outcome
     }
 
 
+def other_kernels(out_dir: Path) -> dict[str, str]:
+    """The cells below ``out_dir`` that ran on another BLAS kernel than this process: ``{file: kernel}``
+    (a cell that records none is left out)."""
+    here = blas_kernel()
+    held = {
+        path.name: json.loads(path.read_text()).get("blas") for path in sorted(out_dir.glob("cells/*.json"))
+    }
+    return {name: kernel for name, kernel in held.items() if kernel is not None and kernel != here}
+
+
 def kernels_note(kernels: list[str | None]) -> str:
     """The tables' line on the BLAS kernels the cells ran on (how many cells each; None: not recorded)."""
     counts = Counter("not recorded" if kernel is None else kernel for kernel in kernels)
@@ -404,6 +417,21 @@ def run_task_sweep(
             f" ({', '.join(lacking[:3])}{', ...' if len(lacking) > 3 else ''}); run them with --resume"
             " or narrow the lists"
         )
+    if reuse and not tables_only and any(not (out_dir / "cells" / name).is_file() for name in todo):
+        other = other_kernels(out_dir)
+        if other:  # a learned kind's new cells would leave theirs by rounding: said, not refused
+            kernel = sorted(set(other.values()))[0]
+            log.warning(
+                "--resume: %d of the cells in %s ran on %s (e.g. %s), this process on %s: a learned"
+                " kind's new cells differ from what that kernel gives by rounding; to match them set"
+                " OPENBLAS_CORETYPE=%s before the run where the CPU has it (swarm/scenarios/blas.py)",
+                len(other),
+                out_dir / "cells",
+                " and ".join(sorted(set(other.values()))),
+                next(iter(other)),
+                blas_kernel(),
+                kernel.split(" ")[-1],
+            )
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "cells").mkdir(exist_ok=True)
     # drawn once, before any run: starts that cannot be drawn are bad input, refused before any work
