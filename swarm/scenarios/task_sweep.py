@@ -420,17 +420,17 @@ def run_task_sweep(
     if reuse and not tables_only and any(not (out_dir / "cells" / name).is_file() for name in todo):
         other = other_kernels(out_dir)
         if other:  # a learned kind's new cells would leave theirs by rounding: said, not refused
-            kernel = sorted(set(other.values()))[0]
+            elsewhere = sorted(set(other.values()))
             log.warning(
                 "--resume: %d of the cells in %s ran on %s (e.g. %s), this process on %s: a learned"
                 " kind's new cells differ from what that kernel gives by rounding; to match them set"
                 " OPENBLAS_CORETYPE=%s before the run where the CPU has it (swarm/scenarios/blas.py)",
                 len(other),
                 out_dir / "cells",
-                " and ".join(sorted(set(other.values()))),
+                " and ".join(elsewhere),
                 next(iter(other)),
                 blas_kernel(),
-                kernel.split(" ")[-1],
+                elsewhere[0].split(" ")[-1],
             )
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "cells").mkdir(exist_ok=True)
