@@ -55,6 +55,12 @@ def test_the_rerun_reproduces_the_sweep_and_reads_every_failing_start(tmp_path, 
     for row, start in zip(rows, cell["starts"], strict=True):
         assert f"| {start['final_metric']:.4f} |" in row  # H/H_ref at the sweep's end: the cell's own
     assert "3 of 3 starts fail" in text
+    assert out.with_suffix(".png").stat().st_size > 0
+    assert stragglers.main([*argv, "--starts", "1"]) == 0  # one start asked: its chunk only, its row only
+    rows = [
+        line for line in out.read_text().splitlines() if line.startswith("| 1 |") or line.startswith("| 0 |")
+    ]
+    assert [row.split("|")[1].strip() for row in rows] == ["1"]
     # a cell whose numbers the rerun does not give back (as from other code or another kernel): refused
     cell["starts"][2]["final_metric"] += 1e-6
     (sweep / "cells" / "cycle-N4-lloyd_flood-loss0.5.json").write_text(json.dumps(cell))

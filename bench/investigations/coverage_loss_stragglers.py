@@ -60,7 +60,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--no-loss", nargs="*", type=Path, default=[], help="sweep dirs of the loss-free cells"
     )
-    parser.add_argument("--out", type=Path, required=True, help="markdown file written")
+    parser.add_argument("--starts", nargs="*", type=int, help="only these failing starts (default: all)")
+    parser.add_argument(
+        "--out", type=Path, required=True, help="markdown file written (and a .png beside it)"
+    )
     args = parser.parse_args(argv)
 
     # -- inputs: the sweep's settings and the cells asked, every name checked before any run
@@ -90,6 +93,7 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         cells.append((name, match, record))
 
+    series: list[tuple[str, int, np.ndarray, np.ndarray]] = []  # (cell, start, times, H / H_ref) to draw
     lines = [
         f"# Coverage under loss: the starts that fail the success rule, run {args.duration_s:g} s",
         "",
@@ -102,9 +106,11 @@ def main(argv: list[str] | None = None) -> int:
         topology, count = match["topology"], int(match["count"])
         controller, loss = match["controller"], float(match["loss"])
         failing = [index for index, start in enumerate(record["starts"]) if not start["converged"]]
+        asked = failing if args.starts is None else [index for index in failing if index in args.starts]
         sweep_end_s = config.run_duration_s
         longer = replace(config, duration_s=args.duration_s)
         section = config.cells.section(count)
+        tolerance = section.tolerance
         poses, adjacency = cell_starts(config, topology, count)
         no_loss = _no_loss_finals(args.no_loss, topology, count, controller)
         print(
@@ -113,10 +119,10 @@ def main(argv: list[str] | None = None) -> int:
         )
 
         # -- rerun each chunk holding a failing start; check it reproduces the sweep; read the failing ones
-        rows = []
+        rows: list[dict] = []
         for loss_seed, chunk in enumerate(cell_chunks(config, len(poses))):
             places = {index: place for place, index in enumerate(chunk.tolist())}
-            in_chunk = [index for index in failing if index in places]
+            in_chunk = [index for index in asked if index in places]
             if not in_chunk:
                 continue
             chunk_adjacency = None if adjacency is None else adjacency[chunk]
@@ -134,6 +140,7 @@ def main(argv: list[str] | None = None) -> int:
                 row["start"] = index
                 row["no_loss"] = None if no_loss is None else no_loss[index]
                 rows.append(row)
+                series.append((name, index, times_s, row.pop("ratio")))
             print(f"  chunk {loss_seed}: {len(in_chunk)} failing start(s) read", flush=True)
 
         # -- the cell's table
@@ -142,7 +149,8 @@ def main(argv: list[str] | None = None) -> int:
             f"## {name}",
             "",
             f"{len(failing)} of {len(record['starts'])} starts fail in the sweep's {sweep_end_s:g} s:"
-            f" {verdicts.count('held')} hold the rule later, {verdicts.count('stopped')} stopped above 1.05,"
+            f" of the {len(rows)} rerun, {verdicts.count('held')} hold the rule later,"
+            f" {verdicts.count('stopped')} stopped above 1.05,"
             f" {verdicts.count('moving')} still moving at {args.duration_s:g} s.",
             "",
             f"| start | H/H_ref at {sweep_end_s:g} s | at {args.duration_s:g} s | first within (s) |"
@@ -159,7 +167,8 @@ def main(argv: list[str] | None = None) -> int:
         lines.append("")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text("\n".join(lines))
-    print(f"wrote {args.out}")
+    _plot(series, config.run_duration_s, 1.0 + tolerance, args.out.with_suffix(".png"))
+    print(f"wrote {args.out} and {args.out.with_suffix('.png')}")
     return 0
 
 
@@ -193,7 +202,37 @@ def _straggler(
         "still_m": moved_m,
         "drift": drift,
         "verdict": verdict,
+        "ratio": ratio,
     }
+
+
+def _plot(
+    series: list[tuple[str, int, np.ndarray, np.ndarray]], sweep_end_s: float, threshold: float, path: Path
+) -> None:
+    """``H / H_ref`` against time of every start rerun, one panel per cell, with the success line and
+    the sweep's end."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cells = list(dict.fromkeys(cell for cell, *_ in series))
+    figure, panels = plt.subplots(len(cells), 1, figsize=(7.0, 2.6 * len(cells)), squeeze=False)
+    for panel, cell in zip(panels[:, 0], cells, strict=True):
+        for name, start, times_s, ratio in series:
+            if name == cell:
+                panel.plot(times_s, ratio, linewidth=0.8, label=f"start {start}")
+        panel.axhline(threshold, color="black", linestyle="--", linewidth=0.8)
+        panel.axvline(sweep_end_s, color="grey", linestyle=":", linewidth=0.8)
+        panel.set_ylim(0.98, 1.15)
+        panel.set_title(cell, fontsize=9)
+        panel.set_ylabel("H / H_ref")
+        if len(panel.get_lines()) <= 12:
+            panel.legend(fontsize=6, ncol=4, loc="upper right")
+    panels[-1, 0].set_xlabel("time (s); dashed: 1.05, dotted: the sweep's end")
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
 
 
 def _no_loss_finals(
