@@ -45,6 +45,8 @@ from swarm.scenarios.task_sweep import TaskSweepConfig, cell_chunks, cell_file_n
 
 CELL_NAME = re.compile(r"^(?P<topology>[a-z_]+)-N(?P<count>\d+)-(?P<controller>\w+?)-loss(?P<loss>[0-9.]+)$")
 STILL_WINDOW_S = 10.0
+MOVER_M = 0.1
+"""A robot whose position in the last ``STILL_WINDOW_S`` strayed more than this from its last one moves."""
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -154,15 +156,17 @@ def main(argv: list[str] | None = None) -> int:
             f" {verdicts.count('moving')} still moving at {args.duration_s:g} s.",
             "",
             f"| start | H/H_ref at {sweep_end_s:g} s | at {args.duration_s:g} s | first within (s) |"
-            " no loss, end | H/H_ref range, last 10 s | largest move, last 10 s (m) | verdict |",
-            "|---|---|---|---|---|---|---|---|",
+            " no loss, end | H/H_ref range, last 10 s | largest move, last 10 s (m) | robots moving > 0.1 m |"
+            " verdict |",
+            "|---|---|---|---|---|---|---|---|---|",
         ]
         for row in rows:
             first = "never" if row["first_within_s"] is None else f"{row['first_within_s']:g}"
             no_loss_text = "" if row["no_loss"] is None else f"{row['no_loss']:.3f}"
             lines.append(
                 f"| {row['start']} | {row['at_sweep_end']:.4f} | {row['at_end']:.4f} | {first}"
-                f" | {no_loss_text} | {row['drift']:.1e} | {row['still_m']:.2g} | {row['verdict']} |"
+                f" | {no_loss_text} | {row['drift']:.1e} | {row['still_m']:.2g} | {row['movers']}"
+                f" | {row['verdict']} |"
             )
         lines.append("")
     args.out.parent.mkdir(parents=True, exist_ok=True)
@@ -186,7 +190,8 @@ def _straggler(
     settle_s = settle_time(times_s, within, section.hold_s)
     window = times_s >= times_s[-1] - STILL_WINDOW_S
     window_positions = positions[window]
-    moved_m = float(np.max(np.linalg.norm(window_positions - window_positions[-1], axis=-1)))
+    moves_m = np.max(np.linalg.norm(window_positions - window_positions[-1], axis=-1), axis=0)  # (N,)
+    moved_m = float(np.max(moves_m))
     drift = float(np.ptp(ratio[window]))
     if settle_s is not None:
         verdict = f"held later, from {settle_s:g} s"
@@ -200,6 +205,7 @@ def _straggler(
         "at_end": float(ratio[-1]),
         "first_within_s": float(times_s[first[0]]) if len(first) else None,
         "still_m": moved_m,
+        "movers": int(np.sum(moves_m > MOVER_M)),
         "drift": drift,
         "verdict": verdict,
         "ratio": ratio,
