@@ -62,7 +62,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--no-loss", nargs="*", type=Path, default=[], help="sweep dirs of the loss-free cells"
     )
-    parser.add_argument("--starts", nargs="*", type=int, help="only these failing starts (default: all)")
+    parser.add_argument(
+        "--starts", nargs="*", type=int, help="of the failing starts, only these (default: all)"
+    )
     parser.add_argument(
         "--out", type=Path, required=True, help="markdown file written (and a .png beside it)"
     )
@@ -115,10 +117,7 @@ def main(argv: list[str] | None = None) -> int:
         tolerance = section.tolerance
         poses, adjacency = cell_starts(config, topology, count)
         no_loss = _no_loss_finals(args.no_loss, topology, count, controller)
-        print(
-            f"{name}: {len(failing)} of {len(record['starts'])} starts fail",
-            flush=True,
-        )
+        print(f"{name}: {len(failing)} of {len(record['starts'])} starts fail", flush=True)
 
         # -- rerun each chunk holding a failing start; check it reproduces the sweep; read the failing ones
         rows: list[dict] = []
