@@ -40,7 +40,7 @@ import numpy as np
 
 from swarm.core.tasks import coverage
 from swarm.core.tasks.registry import settle_time
-from swarm.scenarios.blas import blas_kernel
+from swarm.scenarios.blas import blas_kernel, coretype_setting
 from swarm.scenarios.task_sweep import TaskSweepConfig, cell_chunks, cell_file_name, cell_starts, run_chunk
 
 CELL_NAME = re.compile(r"^(?P<topology>[a-z_]+)-N(?P<count>\d+)-(?P<controller>\w+?)-loss(?P<loss>[0-9.]+)$")
@@ -88,10 +88,9 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         record = json.loads(path.read_text())
         if record.get("blas", blas_kernel()) != blas_kernel():  # a learned kind's rounding is the kernel's
-            kernel = record["blas"].split(" ")[-1]
             print(
                 f"error: {path}: ran on {record['blas']}, this process on {blas_kernel()}:"
-                f" set OPENBLAS_CORETYPE={kernel} (swarm/scenarios/blas.py)",
+                f" set {coretype_setting(record['blas'])} (swarm/scenarios/blas.py)",
                 file=sys.stderr,
             )
             return 2
@@ -137,7 +136,7 @@ def main(argv: list[str] | None = None) -> int:
                     print(f"error: {name} start {index}: the sweep is not reproduced", file=sys.stderr)
                     return 1
             for index in in_chunk:
-                row = _straggler(times_s, positions[:, places[index]], section, sweep_end_s, args.still_ratio)
+                row = _straggler(times_s, positions[:, places[index]], section, end, args.still_ratio)
                 row["start"] = index
                 row["no_loss"] = None if no_loss is None else no_loss[index]
                 rows.append(row)
@@ -179,11 +178,12 @@ def _straggler(
     times_s: np.ndarray,
     positions: np.ndarray,
     section: coverage.CoverageSection,
-    sweep_end_s: float,
+    end: int,
     still_ratio: float,
 ) -> dict:
-    """One failing start's longer run: ``H / H_ref`` at the sweep's end and at the end, the first sample
-    within the tolerance, the largest move of a robot over the last 10 s, and the verdict."""
+    """One failing start's longer run: ``H / H_ref`` at the sweep's end (frame ``end``) and at the end,
+    the first sample within the tolerance, the largest move of a robot over the last 10 s, and the
+    verdict."""
     ratio = coverage.ratio_series(positions, section)
     within = ratio <= 1.0 + section.tolerance
     settle_s = settle_time(times_s, within, section.hold_s)
@@ -200,7 +200,7 @@ def _straggler(
         verdict = "moving"
     first = np.flatnonzero(within)
     return {
-        "at_sweep_end": float(ratio[int(np.flatnonzero(np.isclose(times_s, sweep_end_s))[0])]),
+        "at_sweep_end": float(ratio[end]),
         "at_end": float(ratio[-1]),
         "first_within_s": float(times_s[first[0]]) if len(first) else None,
         "still_m": moved_m,

@@ -31,3 +31,9 @@ def blas_kernel() -> str:
         return "unknown"
     parts = (numpy_own[0].get("internal_api"), numpy_own[0].get("architecture"))
     return " ".join(str(part) for part in parts if part)
+
+
+def coretype_setting(kernel: str) -> str:
+    """``"OPENBLAS_CORETYPE=SkylakeX"`` for the kernel ``"openblas SkylakeX"`` (:func:`blas_kernel`'s form):
+    what makes OpenBLAS run on that kernel, set before numpy loads it, where the CPU has it."""
+    return f"OPENBLAS_CORETYPE={kernel.split(' ')[-1]}"

@@ -45,7 +45,7 @@ from swarm.core.faults import LinkFaults
 from swarm.core.files import write_atomically
 from swarm.core.robot import RobotParams
 from swarm.core.tasks import registry
-from swarm.scenarios.blas import blas_kernel
+from swarm.scenarios.blas import blas_kernel, coretype_setting
 from swarm.scenarios.scenario import ScenarioError
 from swarm.sim.controller_kinds import CONTROLLER_KINDS, ControllerArgs, batched_controller, controller_kind
 from swarm.sim.kinematic import KinematicSim
@@ -410,28 +410,27 @@ def run_task_sweep(
         for controller in config.chosen_controllers
         if not (loss > 0 and controller_kind(controller).central)
     }
-    lacking = [name for name in todo if not (out_dir / "cells" / name).is_file()] if tables_only else []
-    if lacking:
+    missing = [name for name in todo if not (out_dir / "cells" / name).is_file()] if reuse else []
+    if tables_only and missing:
         raise ScenarioError(
-            f"--tables-only: {out_dir / 'cells'} lacks {len(lacking)} of the {len(todo)} cells"
-            f" ({', '.join(lacking[:3])}{', ...' if len(lacking) > 3 else ''}); run them with --resume"
+            f"--tables-only: {out_dir / 'cells'} lacks {len(missing)} of the {len(todo)} cells"
+            f" ({', '.join(missing[:3])}{', ...' if len(missing) > 3 else ''}); run them with --resume"
             " or narrow the lists"
         )
-    if reuse and not tables_only and any(not (out_dir / "cells" / name).is_file() for name in todo):
-        other = other_kernels(out_dir)
-        if other:  # a learned kind's new cells would leave theirs by rounding: said, not refused
-            elsewhere = sorted(set(other.values()))
-            log.warning(
-                "--resume: %d of the cells in %s ran on %s (e.g. %s), this process on %s: a learned"
-                " kind's new cells differ from what that kernel gives by rounding; to match them set"
-                " OPENBLAS_CORETYPE=%s before the run where the CPU has it (swarm/scenarios/blas.py)",
-                len(other),
-                out_dir / "cells",
-                " and ".join(elsewhere),
-                next(iter(other)),
-                blas_kernel(),
-                elsewhere[0].split(" ")[-1],
-            )
+    other = other_kernels(out_dir) if missing else {}
+    if other:  # a learned kind's new cells would leave theirs by rounding: said, not refused
+        elsewhere = sorted(set(other.values()))
+        log.warning(
+            "--resume: %d of the cells in %s ran on %s (e.g. %s), this process on %s: a learned"
+            " kind's new cells differ from what that kernel gives by rounding; to match them set"
+            " %s before the run where the CPU has it (swarm/scenarios/blas.py)",
+            len(other),
+            out_dir / "cells",
+            " and ".join(elsewhere),
+            next(iter(other)),
+            blas_kernel(),
+            coretype_setting(elsewhere[0]),
+        )
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "cells").mkdir(exist_ok=True)
     # drawn once, before any run: starts that cannot be drawn are bad input, refused before any work
