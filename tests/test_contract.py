@@ -125,11 +125,12 @@ def _variant_id(variant: tuple[str, Path | None]) -> str:
 VARIANT_IDS = [_variant_id(variant) for variant in VARIANTS]
 
 
-def _args(variant, onboard: bool) -> ControllerArgs:
+def _args(variant, onboard: bool, options: dict | None = None) -> ControllerArgs:
     _, model = variant
     policy = None if model is None else (model.read_bytes() if onboard else str(model))
     task = TASK_SECTIONS[CONTROLLER_KINDS[variant[0]].task]
-    return ControllerArgs(robot=ROBOT, control_period_s=DT, robot_count=COUNT, policy=policy, task=task)
+    args = ControllerArgs(robot=ROBOT, control_period_s=DT, robot_count=COUNT, policy=policy, task=task)
+    return replace(args, **(options or {}))
 
 
 def far_start(seed: int, batch: int = BATCH, count: int = COUNT) -> np.ndarray:
@@ -164,10 +165,18 @@ class PerRobot:
     """The per-robot form of a controller kind for B swarms: one onboard controller per robot that keeps
     its own messages, or the central process's function per swarm."""
 
-    def __init__(self, variant, batch: int, count: int, faults: LinkFaults | None, max_age: int):
+    def __init__(
+        self,
+        variant,
+        batch: int,
+        count: int,
+        faults: LinkFaults | None,
+        max_age: int,
+        options: dict | None = None,
+    ):
         self.name, self.variant = variant[0], variant
         self.central = CONTROLLER_KINDS[self.name].central
-        self.args = _args(variant, onboard=True)
+        self.args = _args(variant, onboard=True, options=options)
         self.batch, self.count = batch, count
         self.faults, self.max_age = faults, max_age
         self.sent: list[np.ndarray] = []  # per tick: every robot's message (B, N, D)
@@ -248,17 +257,19 @@ def replay(
     max_age: int = 1,
     restart_with: np.ndarray | None = None,
     ticks: int = TICKS,
+    options: dict | None = None,
 ) -> dict:
     """Run the engine and the per-robot form side by side on the engine's poses, comparing every tick's
-    commands and messages; environment 1 restarts from ``restart_with`` at ``RESTART_TICK``. Returns
-    counts of what the run exercised."""
+    commands and messages; environment 1 restarts from ``restart_with`` at ``RESTART_TICK``; both forms
+    built with the kind's ``options`` (``ControllerArgs`` fields) where given. Returns counts of what the
+    run exercised."""
     name, _ = variant
     batch, count = start.shape[:2]
     adjacency = _fixed_graphs(topology, batch, count)
     radius = None if adjacency is not None else RADIUS_M
     sim = KinematicSim(
         ROBOT,
-        batched_controller(name, _args(variant, onboard=False)),
+        batched_controller(name, _args(variant, onboard=False, options=options)),
         DT,
         start,
         adjacency=adjacency,
@@ -266,7 +277,7 @@ def replay(
         link_faults=faults,
         message_max_age_ticks=max_age,
     )
-    twin = PerRobot(variant, batch, count, faults, max_age)
+    twin = PerRobot(variant, batch, count, faults, max_age, options)
     tolerance_u, tolerance_m = TOLERANCE.get(_variant_id(variant), DEFAULT_TOLERANCE)
     scale = 1.0 + float(np.abs(start[..., :2]).max())
     graph_changes, moved = 0, 0.0
@@ -284,7 +295,13 @@ def replay(
         if messages is not None:
             _close(f"{name} messages, tick {tick}", sim.inbox[:, :count], messages, tolerance_m, scale)
         moved = max(moved, float(np.abs(sim.move(u_world)[..., :2] - poses[..., :2]).max()))
-    return {"graph_changes": graph_changes, "moved_m": moved, "fault_counts": dict(sim.fault_counts)}
+    return {
+        "graph_changes": graph_changes,
+        "moved_m": moved,
+        "fault_counts": dict(sim.fault_counts),
+        "end": sim.poses.copy(),
+        "inbox": sim.inbox.copy(),
+    }
 
 
 KNOWN_DRIFTS: dict[tuple[str, str], str] = {}
@@ -382,6 +399,46 @@ def test_batched_equals_per_robot_on_a_fixed_line_with_every_link_delayed(varian
     assert done["moved_m"] > 1e-3
     if not CONTROLLER_KINDS[variant[0]].central:
         assert done["fault_counts"]["delayed_by_fault"] > 0
+
+
+EXAMPLE_OPTION_VALUES = {
+    "gain": 0.7,
+    "directions": 7,
+    "reverse": False,
+    "spacing_m": 0.4,
+    "cell_radius_m": 0.8,
+    "horizon_ticks": 2,
+    "step_fraction": 0.05,  # damps within 20 v_max T of the target: within reach of these short runs
+}
+"""A value other than its default for every option a kind may take (``ControllerKind.options``;
+``model``: the shipped files, one variant each)."""
+
+OPTION_CASES = [
+    pytest.param(variant, option, id=f"{variant_id}-{option}")
+    for variant, variant_id in zip(VARIANTS, VARIANT_IDS, strict=True)
+    for option in CONTROLLER_KINDS[variant[0]].options
+    if option != "model"
+]
+
+
+@pytest.mark.parametrize(("variant", "option"), OPTION_CASES)
+def test_batched_equals_per_robot_with_each_option_set(variant, option):
+    """Every option of every kind, set to a value other than its default, in both forms: on a disk graph
+    that changes, far off the origin, under 40% packet loss, with a restart. The option must change the
+    run's poses or messages (else this would compare the defaults again)."""
+    if option not in EXAMPLE_OPTION_VALUES:
+        pytest.fail(f"option {option!r} of {variant[0]!r}: add a value to EXAMPLE_OPTION_VALUES")
+    faults, max_age = _link_faults("packet_loss", "disk")
+    start, again = far_start(8), far_start(9)
+    options = {option: EXAMPLE_OPTION_VALUES[option]}
+    done = replay(variant, start, "disk", faults, max_age, restart_with=again, options=options)
+    assert done["moved_m"] > 1e-3
+    default = replay(variant, start, "disk", faults, max_age, restart_with=again)
+    changed = [
+        done[key].shape != default[key].shape or not np.array_equal(done[key], default[key])
+        for key in ("end", "inbox")
+    ]
+    assert any(changed), f"{option} changed neither the poses nor the messages"
 
 
 @pytest.mark.parametrize("fault", PROCESS_FAULTS)

@@ -579,3 +579,30 @@ def test_lloyd_predict_with_a_horizon_of_zero_drives_as_lloyd_flood():
     assert ControllerArgs.from_spec(spec, ROBOT, DT).horizon_ticks == 0
     with pytest.raises(ValueError, match="horizon_ticks"):
         ControllerSpec.model_validate({"kind": "lloyd_flood", "horizon_ticks": 3})
+
+
+def test_a_step_fraction_goes_that_fraction_of_the_way_once_within_reach():
+    """By hand, ``v_max T`` = 0.025 m: a robot heading along +x, its target 1 cm ahead, goes the whole
+    way in one tick by default (0.2 m/s) and half of it with ``step_fraction: 0.5`` (0.1 m/s); 4 cm ahead,
+    beyond the default's reach but within the half step's 5 cm, full speed (0.5 m/s) against 0.4 m/s;
+    10 cm ahead, full speed either way. The option comes from the scenario's controller section for the
+    three Lloyd baselines, and is refused for another kind and outside (0, 1]."""
+    from swarm.core.experts import drive_toward_velocity
+
+    pose = np.array([0.0, 0.0, 0.0])
+    for ahead_m, (whole_mps, half_mps) in {0.01: (0.2, 0.1), 0.04: (0.5, 0.4), 0.1: (0.5, 0.5)}.items():
+        target = np.array([ahead_m, 0.0])
+        whole = drive_toward_velocity(pose, target, ROBOT.v_max_mps, DT)
+        half = drive_toward_velocity(pose, target, ROBOT.v_max_mps, DT, step_fraction=0.5)
+        np.testing.assert_allclose(whole, [whole_mps, 0.0], rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(half, [half_mps, 0.0], rtol=1e-12, atol=1e-15)
+    for kind in ("lloyd_local", "lloyd_flood", "lloyd_predict"):
+        spec = ControllerSpec.model_validate({"kind": kind, "step_fraction": 0.5}).model_dump()
+        args = ControllerArgs.from_spec(spec, ROBOT, DT, robot_count=4, task=section(grid_per_axis=24))
+        assert batched_controller(kind, args).step_fraction == 0.5
+        assert onboard_controller(kind, args).step_fraction == 0.5
+    with pytest.raises(ValueError, match="step_fraction"):
+        ControllerSpec.model_validate({"kind": "lloyd_gnn", "step_fraction": 0.5})
+    for bad in (0.0, 1.5):
+        with pytest.raises(ValueError, match="step_fraction"):
+            ControllerSpec.model_validate({"kind": "lloyd_flood", "step_fraction": bad})

@@ -6,6 +6,8 @@ compared with the committed kinds start by start (``bench/task_paired.py``). Thi
 writes one cell file per kind into ``--out/cells``:
 
 - ``NAME=lloyd_predict:H``: ``lloyd_predict`` with an ``H``-tick horizon (``horizon_ticks``);
+- ``NAME=lloyd_predict:step=F``, ``NAME=lloyd_predict:H:step=F``, ``NAME=lloyd_flood:step=F``: the kind
+  with a step fraction ``F`` (``step_fraction``: a fraction ``F`` of the way to its centroid a tick);
 - ``NAME=gnn:PATH``: ``lloyd_gnn`` with the policy file ``PATH`` (on the horizon the file names);
 - ``NAME=gnn:PATH:H``: that readout run on an ``H``-tick cell instead (a diagnosis: it was trained on
   its own);
@@ -50,8 +52,9 @@ from swarm.scenarios.task_sweep import (
     cell_starts,
     chunk_outcomes,
 )
-from swarm.sim.coverage_controllers import LloydGnn, LloydPredict
+from swarm.sim.coverage_controllers import LloydFlood, LloydGnn, LloydPredict
 from swarm.sim.coverage_gnn import CoverageGnnWeights
+from swarm.sim.coverage_onboard import HORIZON_TICKS
 
 COLUMNS = ("first_within_s", "ratio_at_s.10", "ratio_at_s.20", "ratio_at_s.40")
 
@@ -63,15 +66,26 @@ def build(spec: str, config: TaskSweepConfig, count: int):
         return kind
     section = config.cells.section(count)
     robot = RobotParams(v_max_mps=config.v_max_mps)
-    if kind == "lloyd_predict":
-        return LloydPredict(robot, config.control_period_s, section, count, horizon_ticks=float(rest))
-    if kind == "gnn":
-        path, _, horizon = rest.partition(":")
+    parts = rest.split(":")
+    steps = [float(part[5:]) for part in parts if part.startswith("step=")]
+    step_fraction = steps[-1] if steps else 1.0
+    parts = [part for part in parts if not part.startswith("step=")]
+    if kind == "lloyd_predict" and len(parts) <= 1:
+        horizon = float(parts[0]) if parts else HORIZON_TICKS
+        return LloydPredict(
+            robot, config.control_period_s, section, count, horizon_ticks=horizon, step_fraction=step_fraction
+        )
+    if kind == "lloyd_flood" and not parts:
+        return LloydFlood(robot, config.control_period_s, section, count, step_fraction=step_fraction)
+    if kind == "gnn" and parts and not steps:
+        path, horizon = parts[0], parts[1] if len(parts) > 1 else ""
         weights = CoverageGnnWeights.load(path)
         if horizon:
             weights = replace(weights, meta={**weights.meta, "horizon_ticks": float(horizon)})
         return LloydGnn(robot, config.control_period_s, section, count, weights)
-    raise SystemExit(f"--kinds: {spec}: not lloyd_predict:H, gnn:PATH[:H] or a kind's name")
+    raise SystemExit(
+        f"--kinds: {spec}: not lloyd_predict[:H][:step=F], lloyd_flood:step=F, gnn:PATH[:H] or a kind's name"
+    )
 
 
 def _chunk(job: tuple) -> tuple[Path, int, list[dict]]:

@@ -52,6 +52,7 @@ def drive_toward_velocity(
     control_period_s: float,
     reverse: bool = True,
     backward: np.ndarray | bool | None = None,
+    step_fraction: float = 1.0,
 ) -> np.ndarray:
     """Full-speed drive of a robot's AXLE toward a target, forward or (``reverse``) backward.
 
@@ -74,6 +75,9 @@ def drive_toward_velocity(
     of ``reverse``: the backward one where True, wherever the target is (the backward unicycle is the
     forward one with its heading turned by pi, so the same argument holds), and the robot arrives
     with its heading pointing back along its way in.
+
+    ``step_fraction`` ``f`` in (0, 1] damps the last stretch: ``u = (c - x) min(v_max / |c - x|, f / T)``,
+    a fraction ``f`` of the way in one period when closer than ``v_max T / f`` (1: the whole way).
     """
     poses = np.asarray(poses, dtype=np.float64)
     targets = np.asarray(targets, dtype=np.float64)
@@ -87,7 +91,7 @@ def drive_toward_velocity(
     distance = np.sqrt((delta * delta).sum(axis=-1))
     scale = np.where(
         distance > 0.0,
-        np.minimum(v_max_mps / np.where(distance > 0.0, distance, 1.0), 1.0 / control_period_s),
+        np.minimum(v_max_mps / np.where(distance > 0.0, distance, 1.0), step_fraction / control_period_s),
         0.0,
     )
     u = delta * scale[..., None]

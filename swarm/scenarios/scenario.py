@@ -156,6 +156,14 @@ class ControllerSpec(_Strict):
         description="lloyd_predict: extrapolate a flooded position toward its target over at most this many"
         " ticks of its age (default 5; 0: lloyd_flood's cell)",
     )
+    step_fraction: float = Field(
+        1.0,
+        gt=0,
+        le=1,
+        description="lloyd_local, lloyd_flood, lloyd_predict: the fraction of the way to its cell's centroid"
+        " a robot goes in one tick when within reach (1: the whole way; below 1 damps the swings that stale"
+        " positions cause under packet loss)",
+    )
 
     @field_validator("kind")
     @classmethod
@@ -168,7 +176,8 @@ class ControllerSpec(_Strict):
     def _options_of_kind(self) -> ControllerSpec:
         # model and gain predate the registry and stay accepted (and unused) by every kind
         takes = CONTROLLER_KINDS[self.kind].options
-        for option in ("directions", "reverse", "spacing_m", "cell_radius_m", "horizon_ticks"):
+        options = ("directions", "reverse", "spacing_m", "cell_radius_m", "horizon_ticks", "step_fraction")
+        for option in options:
             default = type(self).model_fields[option].default
             if getattr(self, option) != default and option not in takes:
                 taken = ", ".join(takes) or "no options"

@@ -32,11 +32,15 @@ class ControllerArgs:
     spacing_m: float | None = None  # pack_flood: slot spacing (None: its default from the robot)
     cell_radius_m: float | None = None  # lloyd_local: the cell's cut radius (None: not cut)
     horizon_ticks: int | None = None  # lloyd_predict: ticks an entry is extrapolated over (None: 5)
+    step_fraction: float = 1.0  # lloyd_local/flood/predict: of the way to the centroid in one tick
 
     @classmethod
     def from_spec(cls, spec: Mapping[str, Any], robot: RobotParams, control_period_s: float, **more):
         """From a scenario's ``controller`` section (a mapping, e.g. ``ControllerSpec.model_dump()``)."""
-        keys = ("gain", "directions", "reverse", "spacing_m", "cell_radius_m", "horizon_ticks")
+        keys = (
+            *("gain", "directions", "reverse", "spacing_m"),
+            *("cell_radius_m", "horizon_ticks", "step_fraction"),
+        )
         options = {key: spec[key] for key in keys if spec.get(key) is not None}
         return cls(robot=robot, control_period_s=control_period_s, **options, **more)
 
@@ -185,28 +189,53 @@ def _lloyd(args: ControllerArgs):
 def _lloyd_local(args: ControllerArgs):
     from swarm.sim.coverage_controllers import LloydLocal
 
-    return LloydLocal(args.robot, args.control_period_s, _coverage(args), args.cell_radius_m, args.reverse)
+    return LloydLocal(
+        args.robot,
+        args.control_period_s,
+        _coverage(args),
+        args.cell_radius_m,
+        args.reverse,
+        args.step_fraction,
+    )
 
 
 def _onboard_lloyd_local(args: ControllerArgs):
     from swarm.sim.coverage_onboard import OnboardLloydLocal
 
     return OnboardLloydLocal(
-        args.robot, args.control_period_s, _coverage(args), args.cell_radius_m, args.reverse
+        args.robot,
+        args.control_period_s,
+        _coverage(args),
+        args.cell_radius_m,
+        args.reverse,
+        args.step_fraction,
     )
 
 
 def _lloyd_flood(args: ControllerArgs):
     from swarm.sim.coverage_controllers import LloydFlood
 
-    return LloydFlood(args.robot, args.control_period_s, _coverage(args), args.robot_count, args.reverse)
+    return LloydFlood(
+        args.robot,
+        args.control_period_s,
+        _coverage(args),
+        args.robot_count,
+        args.reverse,
+        args.step_fraction,
+    )
 
 
 def _onboard_lloyd_flood(args: ControllerArgs):
     from swarm.sim.coverage_onboard import OnboardLloydFlood
 
     return OnboardLloydFlood(
-        args.robot, args.control_period_s, _coverage(args), args.robot_count, args.robot_id, args.reverse
+        args.robot,
+        args.control_period_s,
+        _coverage(args),
+        args.robot_count,
+        args.robot_id,
+        args.reverse,
+        args.step_fraction,
     )
 
 
@@ -214,7 +243,13 @@ def _lloyd_predict(args: ControllerArgs):
     from swarm.sim.coverage_controllers import LloydPredict
 
     return LloydPredict(
-        args.robot, args.control_period_s, _coverage(args), args.robot_count, args.reverse, _horizon(args)
+        args.robot,
+        args.control_period_s,
+        _coverage(args),
+        args.robot_count,
+        args.reverse,
+        _horizon(args),
+        args.step_fraction,
     )
 
 
@@ -229,6 +264,7 @@ def _onboard_lloyd_predict(args: ControllerArgs):
         args.robot_id,
         args.reverse,
         _horizon(args),
+        args.step_fraction,
     )
 
 
@@ -332,7 +368,7 @@ CONTROLLER_KINDS: dict[str, ControllerKind] = {
             "gathering bodies: flood the starts, CAPT to a hexagonal packing at their MEC centre",
             _pack_flood,
             _onboard_pack_flood,
-            ("reverse", "spacing_m"),
+            ("spacing_m",),  # no `reverse`: HEADING_OUT picks each robot's law (it was accepted and unused)
         ),
         ControllerKind(
             "centralized_mec",
@@ -362,7 +398,7 @@ CONTROLLER_KINDS: dict[str, ControllerKind] = {
             "formation: capt_flood's flood and provisional slot, a learned steering (controller.model)",
             _capt_gnn,
             _onboard_capt_gnn,
-            ("model", "reverse"),
+            ("model",),  # its learned steering has no `reverse` to set (it was accepted and unused)
             task="formation",
         ),
         ControllerKind(
@@ -378,7 +414,7 @@ CONTROLLER_KINDS: dict[str, ControllerKind] = {
             "coverage: Lloyd over the heard neighbours' positions (Cortes et al. 2004)",
             _lloyd_local,
             _onboard_lloyd_local,
-            ("reverse", "cell_radius_m"),
+            ("reverse", "cell_radius_m", "step_fraction"),
             task="coverage",
         ),
         ControllerKind(
@@ -386,7 +422,7 @@ CONTROLLER_KINDS: dict[str, ControllerKind] = {
             "coverage: flood every robot's freshest position, Lloyd over everyone known",
             _lloyd_flood,
             _onboard_lloyd_flood,
-            ("reverse",),
+            ("reverse", "step_fraction"),
             task="coverage",
         ),
         ControllerKind(
@@ -395,7 +431,7 @@ CONTROLLER_KINDS: dict[str, ControllerKind] = {
             "targets take them (over at most horizon_ticks of an entry's age)",
             _lloyd_predict,
             _onboard_lloyd_predict,
-            ("reverse", "horizon_ticks"),
+            ("reverse", "horizon_ticks", "step_fraction"),
             task="coverage",
         ),
         ControllerKind(
@@ -403,7 +439,7 @@ CONTROLLER_KINDS: dict[str, ControllerKind] = {
             "coverage: lloyd_predict's flood and cells, a learned steering (controller.model)",
             _lloyd_gnn,
             _onboard_lloyd_gnn,
-            ("model", "reverse"),
+            ("model",),  # its learned steering has no `reverse` to set (it was accepted and unused)
             task="coverage",
         ),
     )

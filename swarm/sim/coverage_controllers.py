@@ -383,17 +383,30 @@ def centroid_targets(sums: np.ndarray, fallback: np.ndarray) -> np.ndarray:
 class _Coverage:
     centralized = False
 
-    def __init__(self, robot: RobotParams, control_period_s: float, section: CoverageSection, reverse: bool):
+    def __init__(
+        self,
+        robot: RobotParams,
+        control_period_s: float,
+        section: CoverageSection,
+        reverse: bool,
+        step_fraction: float = 1.0,
+    ):
         self.robot = robot
         self.control_period_s = float(control_period_s)
         self.section = section
         self.reverse = bool(reverse)
+        self.step_fraction = float(step_fraction)
         self.points, self.weights = section.quadrature()
         self.fallback = density_centroid(self.points, self.weights)
 
     def drive(self, poses: np.ndarray, targets: np.ndarray) -> np.ndarray:
         return drive_toward_velocity(
-            poses, targets, self.robot.v_max_mps, self.control_period_s, self.reverse
+            poses,
+            targets,
+            self.robot.v_max_mps,
+            self.control_period_s,
+            self.reverse,
+            step_fraction=self.step_fraction,
         )
 
     def sums(
@@ -451,8 +464,9 @@ class LloydLocal(_Coverage):
         section: CoverageSection,
         cell_radius_m: float | None = None,
         reverse: bool = True,
+        step_fraction: float = 1.0,
     ):
-        super().__init__(robot, control_period_s, section, reverse)
+        super().__init__(robot, control_period_s, section, reverse, step_fraction)
         self.cell_radius_m = cell_radius_m
 
     def act(
@@ -476,8 +490,9 @@ class LloydFlood(_Coverage):
         section: CoverageSection,
         robot_count: int,
         reverse: bool = True,
+        step_fraction: float = 1.0,
     ):
-        super().__init__(robot, control_period_s, section, reverse)
+        super().__init__(robot, control_period_s, section, reverse, step_fraction)
         self.count = int(robot_count)
         self.message_dim = self.fields * self.count
         self._targets = np.zeros((0, self.count, 2))
@@ -537,8 +552,9 @@ class LloydPredict(LloydFlood):
         robot_count: int,
         reverse: bool = True,
         horizon_ticks: float = HORIZON_TICKS,
+        step_fraction: float = 1.0,
     ):
-        super().__init__(robot, control_period_s, section, robot_count, reverse)
+        super().__init__(robot, control_period_s, section, robot_count, reverse, step_fraction)
         self.horizon_ticks = float(horizon_ticks)  # math.inf: not capped
 
     def known_positions(self, memory: np.ndarray) -> np.ndarray:

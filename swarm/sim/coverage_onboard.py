@@ -51,15 +51,30 @@ def cell_centroid(
 
 
 class _OnboardCoverage:
-    def __init__(self, robot: RobotParams, control_period_s: float, section: CoverageSection, reverse: bool):
+    def __init__(
+        self,
+        robot: RobotParams,
+        control_period_s: float,
+        section: CoverageSection,
+        reverse: bool,
+        step_fraction: float = 1.0,
+    ):
         self.robot = robot
         self.control_period_s = float(control_period_s)
         self.reverse = bool(reverse)
+        self.step_fraction = float(step_fraction)
         self.points, self.weights = section.quadrature()
         self.fallback = density_centroid(self.points, self.weights)
 
     def drive(self, pose: np.ndarray, target: np.ndarray) -> np.ndarray:
-        return drive_toward_velocity(pose, target, self.robot.v_max_mps, self.control_period_s, self.reverse)
+        return drive_toward_velocity(
+            pose,
+            target,
+            self.robot.v_max_mps,
+            self.control_period_s,
+            self.reverse,
+            step_fraction=self.step_fraction,
+        )
 
 
 class OnboardLloydLocal(_OnboardCoverage):
@@ -74,8 +89,9 @@ class OnboardLloydLocal(_OnboardCoverage):
         section: CoverageSection,
         cell_radius_m: float | None = None,
         reverse: bool = True,
+        step_fraction: float = 1.0,
     ):
-        super().__init__(robot, control_period_s, section, reverse)
+        super().__init__(robot, control_period_s, section, reverse, step_fraction)
         self.cell_radius_m = cell_radius_m
 
     def act_one(
@@ -135,8 +151,9 @@ class OnboardLloydFlood(_OnboardCoverage):
         robot_count: int,
         robot_id: int,
         reverse: bool = True,
+        step_fraction: float = 1.0,
     ):
-        super().__init__(robot, control_period_s, section, reverse)
+        super().__init__(robot, control_period_s, section, reverse, step_fraction)
         self.count = int(robot_count)
         self.robot_id = int(robot_id)
         self.message_dim = self.fields * self.count
@@ -189,8 +206,9 @@ class OnboardLloydPredict(OnboardLloydFlood):
         robot_id: int,
         reverse: bool = True,
         horizon_ticks: float = HORIZON_TICKS,
+        step_fraction: float = 1.0,
     ):
-        super().__init__(robot, control_period_s, section, robot_count, robot_id, reverse)
+        super().__init__(robot, control_period_s, section, robot_count, robot_id, reverse, step_fraction)
         self.horizon_ticks = float(horizon_ticks)  # math.inf: not capped
 
     def known_positions(self, entries: np.ndarray) -> np.ndarray:
