@@ -8,6 +8,8 @@ writes one cell file per kind into ``--out/cells``:
 - ``NAME=lloyd_predict:H``: ``lloyd_predict`` with an ``H``-tick horizon (``horizon_ticks``);
 - ``NAME=lloyd_predict:step=F``, ``NAME=lloyd_predict:H:step=F``, ``NAME=lloyd_flood:step=F``: the kind
   with a step fraction ``F`` (``step_fraction``: a fraction ``F`` of the way to its centroid a tick);
+- ``NAME=lloyd_predict:age=K``: ``lloyd_predict`` with a step damped by the age of what the robot knows
+  of its nearest robots (:class:`AgeDampedPredict`, an investigation only);
 - ``NAME=gnn:PATH``: ``lloyd_gnn`` with the policy file ``PATH`` (on the horizon the file names);
 - ``NAME=gnn:PATH:H``: that readout run on an ``H``-tick cell instead (a diagnosis: it was trained on
   its own);
@@ -56,6 +58,37 @@ from swarm.sim.coverage_controllers import LloydFlood, LloydGnn, LloydPredict
 from swarm.sim.coverage_gnn import CoverageGnnWeights
 from swarm.sim.coverage_onboard import HORIZON_TICKS
 
+NEAREST_FOR_AGE = 6
+"""``lloyd_predict:age=K``: how many of the nearest known robots' entry ages set a robot's gain (about a
+Voronoi cell's neighbours in the plane)."""
+
+
+class AgeDampedPredict(LloydPredict):
+    """``lloyd_predict`` whose step toward its centroid ``c`` shrinks with what it knows of its nearest
+    robots: target ``x + g (c - x)``, ``g = min(1, K / (1 + a))``, ``a`` the mean age in ticks of the
+    entries of the ``NEAREST_FOR_AGE`` known robots nearest to it (at their predicted positions). An
+    investigation only (not a kind): does a step damped by the age of what a robot knows stop the swings
+    under loss (docs/tasks.md, "The starts that fail under loss")?"""
+
+    def __init__(self, *args, age_gain: float, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.age_gain = float(age_gain)
+
+    def act(self, poses, points, inbox, heard):
+        batch, count = poses.shape[:2]
+        memory = self.update_targets(poses, inbox, heard)
+        known = memory[..., 0] > 0.0
+        known[:, np.arange(count), np.arange(count)] = False
+        gap_m = np.linalg.norm(self.known_positions(memory) - poses[:, :, None, :2], axis=-1)
+        nearest = np.argsort(np.where(known, gap_m, np.inf), axis=-1, kind="stable")[..., :NEAREST_FOR_AGE]
+        ages = np.take_along_axis(np.maximum(memory[..., 0] - 1.0, 0.0), nearest, axis=-1)
+        counted = np.take_along_axis(known, nearest, axis=-1)
+        mean_age = np.where(counted, ages, 0.0).sum(-1) / np.maximum(counted.sum(-1), 1)
+        gain = np.minimum(1.0, self.age_gain / (1.0 + mean_age))
+        targets = poses[..., :2] + gain[..., None] * (self._targets - poses[..., :2])
+        return self.drive(poses, targets), memory.reshape(batch, count, self.fields * count)
+
+
 COLUMNS = ("first_within_s", "ratio_at_s.10", "ratio_at_s.20", "ratio_at_s.40")
 
 
@@ -69,7 +102,10 @@ def build(spec: str, config: TaskSweepConfig, count: int):
     parts = rest.split(":")
     steps = [float(part[5:]) for part in parts if part.startswith("step=")]
     step_fraction = steps[-1] if steps else 1.0
-    parts = [part for part in parts if not part.startswith("step=")]
+    ages = [float(part[4:]) for part in parts if part.startswith("age=")]
+    parts = [part for part in parts if not part.startswith(("step=", "age="))]
+    if kind == "lloyd_predict" and ages and not parts and not steps:
+        return AgeDampedPredict(robot, config.control_period_s, section, count, age_gain=ages[-1])
     if kind == "lloyd_predict" and len(parts) <= 1:
         horizon = float(parts[0]) if parts else HORIZON_TICKS
         return LloydPredict(
@@ -84,7 +120,8 @@ def build(spec: str, config: TaskSweepConfig, count: int):
             weights = replace(weights, meta={**weights.meta, "horizon_ticks": float(horizon)})
         return LloydGnn(robot, config.control_period_s, section, count, weights)
     raise SystemExit(
-        f"--kinds: {spec}: not lloyd_predict[:H][:step=F], lloyd_flood:step=F, gnn:PATH[:H] or a kind's name"
+        f"--kinds: {spec}: not lloyd_predict[:H][:step=F], lloyd_predict:age=K, lloyd_flood:step=F,"
+        " gnn:PATH[:H] or a kind's name"
     )
 
 
