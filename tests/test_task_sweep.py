@@ -163,6 +163,17 @@ def test_the_sweep_command_runs_a_task_and_exits_1_where_a_cell_fails(tmp_path, 
     argv += ["--sizes", "6", "--seeds", "2", "--max-duration", "5", "--out", str(tmp_path / "c"), "--quiet"]
     assert main(argv) == 1
     assert "not always met: line N=6 lloyd_local: 0.0%" in capsys.readouterr().out
+    # a cell that succeeds, then its tables with another kind's not run yet: exit 1 (incomplete), the
+    # missing cell named, and not run
+    argv = ["sweep", "--task", "coverage", "--controllers", "lloyd", "--topologies", "line", "--sizes", "6"]
+    argv += ["--seeds", "2", "--max-duration", "30", "--out", str(tmp_path / "d"), "--quiet"]
+    assert main(argv) == 0
+    capsys.readouterr()
+    assert main([*argv[:5], "lloyd_flood", *argv[5:], "--tables-only"]) == 1
+    said = capsys.readouterr().out
+    assert "incomplete: 1 cells of these lists not run yet (line-N6-lloyd_flood-loss0.json)" in said
+    assert "not always met" not in said
+    assert not (tmp_path / "d" / "cells" / "line-N6-lloyd_flood-loss0.json").exists()
 
 
 @pytest.mark.parametrize(
@@ -311,13 +322,30 @@ def test_a_sweep_run_in_parts_with_resume_writes_what_one_run_writes(tmp_path):
     assert {p.name: p.stat().st_mtime_ns for p in (parts / "cells").iterdir()} == stamps
     for table in ("sweep.md", "sweep.csv", "sweep_config.json"):
         assert (once / table).read_bytes() == (parts / table).read_bytes(), table
-    # ... and with a cell missing it names it and writes nothing (no table, no cell run)
+    # ... and with a cell missing: the tables of the other 15, a line naming it, and it is not run
     gone = parts / "cells" / "cycle-N4-lloyd_flood-loss0.json"
     kept = gone.read_bytes()
     gone.unlink()
+    rows = task_sweep.run_task_sweep(whole, parts, progress=False, tables_only=True)
+    assert not gone.exists()
+    assert len(rows) == 15
+    assert not any(
+        row["topology"] == "cycle"
+        and row["robots"] == 4
+        and row["controller"] == "lloyd_flood"
+        and row["packet_loss"] == 0.0
+        for row in rows
+    )
+    assert (
+        "Tables of 15 of the 16 cells of these lists; not run yet: cycle-N4-lloyd_flood-loss0.json"
+        in (parts / "sweep.md").read_text()
+    )
+    # ... and with none of them there: refused, nothing written
+    narrow = whole.with_overrides({"topologies": ["cycle"], "sizes": [4], "controllers": ["lloyd_flood"]})
+    narrow = narrow.with_overrides({"packet_losses": [0.0]})
     tables = {name: (parts / name).read_bytes() for name in ("sweep.md", "sweep.csv", "sweep_config.json")}
-    with pytest.raises(ScenarioError, match=r"lacks 1 of the 16 cells \(cycle-N4-lloyd_flood-loss0\.json\)"):
-        task_sweep.run_task_sweep(whole, parts, progress=False, tables_only=True)
+    with pytest.raises(ScenarioError, match=r"holds none of the 1 cells of these lists"):
+        task_sweep.run_task_sweep(narrow, parts, progress=False, tables_only=True)
     assert not gone.exists()
     assert {name: (parts / name).read_bytes() for name in tables} == tables
     gone.write_bytes(kept)

@@ -365,6 +365,20 @@ def reusable_cells(config: TaskSweepConfig, out_dir: Path) -> bool:
     }
 
 
+def cell_names(config: TaskSweepConfig) -> dict[str, tuple[str, int, str, float]]:
+    """Every cell of a sweep's lists: its file name -> ``(topology, N, controller, loss)``, the small
+    swarms of every graph first (an interrupted sweep has whole tables for them); a central kind runs
+    without loss only."""
+    return {
+        cell_file_name(topology, count, controller, loss): (topology, count, controller, loss)
+        for loss in config.packet_losses
+        for count in config.sizes
+        for topology in config.topologies
+        for controller in config.chosen_controllers
+        if not (loss > 0 and controller_kind(controller).central)
+    }
+
+
 def run_task_sweep(
     config: TaskSweepConfig,
     out_dir: Path,
@@ -377,7 +391,9 @@ def run_task_sweep(
     ``resume``: a cell whose file ``out_dir`` already holds from a sweep of the same settings
     (:func:`reusable_cells`; other lists of graphs, sizes, controllers or losses allowed) is read, not
     run again; with other settings there, ScenarioError. ``tables_only``: ``resume`` that runs no cell:
-    the tables of the cells ``out_dir`` holds, ScenarioError (nothing written) naming those it lacks.
+    the tables of the cells of the lists that ``out_dir`` holds, with a line naming those it lacks
+    (the caller compares the rows with :func:`cell_names`); ScenarioError (nothing written) where it
+    holds none.
     ``workers`` > 1: the cells' chunks of starts run in that many processes (one numba thread each);
     every cell file is the same as with one."""
     if workers < 1:
@@ -402,22 +418,21 @@ def run_task_sweep(
             raise ScenarioError(
                 f"--tables-only: no {out_dir / 'sweep_config.json'}: no sweep's cells to read"
             )
-    todo = {  # the small swarms of every graph first: an interrupted sweep has whole tables for them
-        cell_file_name(topology, count, controller, loss): (topology, count, controller, loss)
-        for loss in config.packet_losses
-        for count in config.sizes
-        for topology in config.topologies
-        for controller in config.chosen_controllers
-        if not (loss > 0 and controller_kind(controller).central)
-    }
+    todo = cell_names(config)
     missing = [name for name in todo if not (out_dir / "cells" / name).is_file()] if reuse else []
+    lacking = ""  # --tables-only with cells missing: the tables of the others, and a line naming those
     if tables_only and missing:
-        raise ScenarioError(
-            f"--tables-only: {out_dir / 'cells'} lacks {len(missing)} of the {len(todo)} cells"
-            f" ({', '.join(missing[:3])}{', ...' if len(missing) > 3 else ''}); run them with --resume"
-            " or narrow the lists"
+        if len(missing) == len(todo):
+            raise ScenarioError(
+                f"--tables-only: {out_dir / 'cells'} holds none of the {len(todo)} cells of these lists"
+                f" ({', '.join(missing[:3])}{', ...' if len(missing) > 3 else ''}); run them with --resume"
+            )
+        lacking = (
+            f"Tables of {len(todo) - len(missing)} of the {len(todo)} cells of these lists; not run yet:"
+            f" {', '.join(missing)} (`--resume` runs them)."
         )
-    other = other_kernels(out_dir) if missing else {}
+        todo = {name: cell for name, cell in todo.items() if name not in missing}
+    other = other_kernels(out_dir) if missing and not tables_only else {}
     if other:  # a learned kind's new cells would leave theirs by rounding: said, not refused
         elsewhere = sorted(set(other.values()))
         log.warning(
@@ -466,7 +481,8 @@ def run_task_sweep(
         return [rows[name] for name in todo if name in rows]
 
     def kernels_line() -> str:
-        return kernels_note([kernels.get(name) for name in todo if name in rows])
+        held = kernels_note([kernels.get(name) for name in todo if name in rows])
+        return f"{lacking} {held}" if lacking else held
 
     try:
         if workers > 1 and not tables_only:
