@@ -39,12 +39,11 @@ import os
 import numba
 import numpy as np
 
-from swarm.core.experts import drive_toward_velocity
 from swarm.core.robot import RobotParams
-from swarm.core.tasks.coverage import CoverageSection, density_centroid
+from swarm.core.tasks.coverage import CoverageSection
 from swarm.sim import kernels
 from swarm.sim.coverage_gnn import CoverageGnnWeights, coverage_features, region_scale_m
-from swarm.sim.coverage_onboard import HORIZON_TICKS
+from swarm.sim.coverage_onboard import HORIZON_TICKS, CoverageDrive
 from swarm.sim.links import Links
 from swarm.sim.steering_mlp import local_command, to_world
 
@@ -380,34 +379,8 @@ def centroid_targets(sums: np.ndarray, fallback: np.ndarray) -> np.ndarray:
     return np.where(mass > 0.0, sums[..., 1:] / np.where(mass > 0.0, mass, 1.0), fallback)
 
 
-class _Coverage:
+class _Coverage(CoverageDrive):
     centralized = False
-
-    def __init__(
-        self,
-        robot: RobotParams,
-        control_period_s: float,
-        section: CoverageSection,
-        reverse: bool,
-        step_fraction: float = 1.0,
-    ):
-        self.robot = robot
-        self.control_period_s = float(control_period_s)
-        self.section = section
-        self.reverse = bool(reverse)
-        self.step_fraction = float(step_fraction)
-        self.points, self.weights = section.quadrature()
-        self.fallback = density_centroid(self.points, self.weights)
-
-    def drive(self, poses: np.ndarray, targets: np.ndarray) -> np.ndarray:
-        return drive_toward_velocity(
-            poses,
-            targets,
-            self.robot.v_max_mps,
-            self.control_period_s,
-            self.reverse,
-            step_fraction=self.step_fraction,
-        )
 
     def sums(
         self, own: np.ndarray, others: np.ndarray, valid: np.ndarray, radius_m: float | None

@@ -50,7 +50,12 @@ def cell_centroid(
     return cell_moments(own, others, points, weights, fallback, radius_m)[1]
 
 
-class _OnboardCoverage:
+class CoverageDrive:
+    """What both forms of the coverage kinds share (this one per robot, ``swarm.sim.coverage_controllers``
+    batched): the robot, the control period, the section's quadrature and density centroid, and the
+    drive to a target (:func:`swarm.core.experts.drive_toward_velocity`, which broadcasts over robots):
+    full speed, or ``step_fraction`` of the way in one tick once within reach."""
+
     def __init__(
         self,
         robot: RobotParams,
@@ -61,15 +66,17 @@ class _OnboardCoverage:
     ):
         self.robot = robot
         self.control_period_s = float(control_period_s)
+        self.section = section
         self.reverse = bool(reverse)
         self.step_fraction = float(step_fraction)
         self.points, self.weights = section.quadrature()
         self.fallback = density_centroid(self.points, self.weights)
 
-    def drive(self, pose: np.ndarray, target: np.ndarray) -> np.ndarray:
+    def drive(self, poses: np.ndarray, targets: np.ndarray) -> np.ndarray:
+        """World velocities ``(..., 2)`` of the poses ``(..., 3)`` toward the targets ``(..., 2)``."""
         return drive_toward_velocity(
-            pose,
-            target,
+            poses,
+            targets,
             self.robot.v_max_mps,
             self.control_period_s,
             self.reverse,
@@ -77,7 +84,7 @@ class _OnboardCoverage:
         )
 
 
-class OnboardLloydLocal(_OnboardCoverage):
+class OnboardLloydLocal(CoverageDrive):
     """``lloyd_local`` for one robot: ``act_one(pose (3,), neighbour_messages (m, 2), weights)``."""
 
     message_dim = 2
@@ -137,7 +144,7 @@ def predicted_positions(table: np.ndarray, step_m: float, horizon_ticks: float =
     return table[..., 1:3] + toward * scale[..., None]
 
 
-class OnboardLloydFlood(_OnboardCoverage):
+class OnboardLloydFlood(CoverageDrive):
     """``lloyd_flood`` for robot ``robot_id``: ``act_one(pose (3,), neighbour_messages (m, 3N), weights)``."""
 
     fields = 3
