@@ -2,7 +2,8 @@
 
 Every kind drives each axle at full speed toward a target (``swarm.core.experts.drive_toward_velocity``:
 the whole way in one control period when closer than ``v_max T``, so near a fixed point a tick is one
-step of Lloyd's map). The kinds differ in what the target is computed from:
+step of Lloyd's map; the baselines' ``step_fraction`` option goes that fraction of the way instead).
+The kinds differ in what the target is computed from:
 
 - ``lloyd`` (:class:`LloydExpert`, centralized): the centroid of the robot's Voronoi cell among all
   robots' current positions (Lloyd's map, ``swarm.core.tasks.coverage.lloyd_centroids``, but with a
